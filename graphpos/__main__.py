@@ -1,0 +1,5 @@
+import sys
+
+from graphpos.cli import main
+
+sys.exit(main())

@@ -1,0 +1,62 @@
+"""The ``graphpos`` command.
+
+Each command group lives in its own module with a ``register(subparsers)``
+function that adds its sub-commands (each with ``set_defaults(func=...)``).
+A user mistake (any :class:`~graphpos.errors.GraphposError`, a missing or
+unreadable file) prints one line on stderr and exits with status 2; argparse
+does the same for bad options.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from graphpos import __version__
+from graphpos.errors import GraphposError
+
+#: Command-group modules, in the order their commands appear in --help.
+_COMMAND_MODULES = (
+    "graphpos.cli.drives",
+    "graphpos.cli.ranging",
+    "graphpos.cli.estimators",
+    "graphpos.cli.evaluation",
+)
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str) -> None:  # one line, status 2
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="graphpos", description="Vehicle positioning where GNSS is denied.")
+    parser.add_argument("--version", action="version", version=f"graphpos {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    for module_name in _COMMAND_MODULES:
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as exc:
+            if exc.name == module_name:  # group not built yet
+                continue
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args.func(args) or 0)
+    except GraphposError as exc:
+        print(f"graphpos {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"graphpos {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

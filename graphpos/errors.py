@@ -1,0 +1,61 @@
+"""The project's error types.
+
+Every error a user can cause (a bad file, a bad option, a drive an estimator
+cannot use) is a :class:`GraphposError`. The CLI prints such an error as one
+line on stderr and exits with status 2; anything else is a bug and keeps its
+traceback.
+"""
+
+from __future__ import annotations
+
+
+class GraphposError(Exception):
+    """Base class of every error caused by the user's input."""
+
+
+class DriveError(GraphposError):
+    """A drive's content is invalid.
+
+    Parameters
+    ----------
+    channel : str
+        The channel (or map: ``tags``, ``rsus``, ``windows``) at fault.
+    row : int or None
+        The offending row, 0-based, where one row is at fault.
+    reason : str
+        What is wrong, in words a user can act on.
+    source : str, optional
+        The file the drive came from, when known.
+    """
+
+    def __init__(self, channel: str, row: int | None, reason: str, source: str | None = None):
+        self.channel = channel
+        self.row = row
+        self.reason = reason
+        self.source = source
+        super().__init__(self._message())
+
+    def _message(self) -> str:
+        where = f"{self.source}: " if self.source else ""
+        at_row = f", row {self.row}" if self.row is not None else ""
+        return f"{where}channel '{self.channel}'{at_row}: {self.reason}"
+
+    def with_source(self, source: str) -> "DriveError":
+        """The same error, naming the file it came from."""
+        return DriveError(self.channel, self.row, self.reason, source)
+
+
+class FileFormatError(GraphposError):
+    """A file cannot be read: missing, empty, truncated, corrupt or foreign."""
+
+
+class ConfigError(GraphposError):
+    """A configuration value or option is invalid."""
+
+
+class MissingChannelError(GraphposError):
+    """An estimator was given a drive that lacks a channel it needs."""
+
+
+class EstimationError(GraphposError):
+    """An estimator failed on valid input (e.g. an optimiser did not converge)."""

@@ -1,0 +1,113 @@
+"""The estimator contract shared by the filters and the factor graphs.
+
+An estimator is built from a config (a dataclass whose field names carry
+units), declares the channels it needs, and turns a drive into an
+:class:`~graphpos.estimate.Estimate`::
+
+    est = FusionEkf(config, layout="optimized", range_model=model)
+    estimate = est.run(drive)
+
+Online use is the same object fed one measurement at a time::
+
+    est.start(drive)                    # maps, origin; channel data unused
+    for m in live_feed:                 # graphpos.drive.Measurement, arrival order
+        for row in est.process(m):      # OutputRow for each output epoch passed
+            publish(row)
+    estimate = est.finish()
+
+``run`` is exactly that loop over ``drive.measurements(...)`` in arrival
+order (an estimator may override ``run`` with a faster equivalent, which its
+tests must show gives the same result).
+"""
+
+from __future__ import annotations
+
+import time
+from abc import ABC, abstractmethod
+from typing import Any, ClassVar
+
+from graphpos.drive import Drive, Measurement
+from graphpos.errors import MissingChannelError
+from graphpos.estimate import Estimate, OutputRow
+
+
+class Estimator(ABC):
+    """Base class of every estimator.
+
+    Parameters
+    ----------
+    config : dataclass instance, optional
+        The estimator's tunables; ``default_config()`` when None.
+    layout : str, optional
+        Restrict RFID readings to a named tag layout of the drive.
+    range_model : graphpos.ranging.RangeModel, optional
+        How RFID/RSU readings become distances and sigmas. None: the drive's
+        default (:func:`graphpos.ranging.default_range_model`).
+    """
+
+    #: Registry name (``fusion-ekf``).
+    name: ClassVar[str]
+    #: One-line description for ``graphpos estimators``.
+    summary: ClassVar[str] = ""
+    #: Channels without which the estimator refuses a drive.
+    required_channels: ClassVar[tuple[str, ...]] = ()
+    #: Channels used when present (with documented fallbacks when absent).
+    optional_channels: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, config: Any = None, layout: str | None = None, range_model: Any = None):
+        self.config = config if config is not None else self.default_config()
+        self.layout = layout
+        self.range_model = range_model
+
+    @classmethod
+    @abstractmethod
+    def default_config(cls) -> Any:
+        """The papers' defaults."""
+
+    # -- checks ---------------------------------------------------------------
+    def check(self, drive: Drive) -> None:
+        """Raise :class:`MissingChannelError` if the drive lacks a needed channel."""
+        missing = [c for c in self.required_channels if not drive.has(c)]
+        if missing:
+            raise MissingChannelError(
+                f"{self.name} needs channel(s) {', '.join(missing)}, which drive '{drive.name}' does not have"
+            )
+
+    def prepare(self, drive: Drive) -> Drive:
+        """Validate the drive and apply the layout restriction."""
+        self.check(drive)
+        return drive.with_layout(self.layout) if self.layout else drive
+
+    def channels_used(self, drive: Drive) -> tuple[str, ...]:
+        """Channels fed to ``process``, in tie-break order."""
+        return tuple(c for c in (*self.required_channels, *self.optional_channels) if drive.has(c))
+
+    # -- online -------------------------------------------------------------
+    @abstractmethod
+    def start(self, drive: Drive) -> None:
+        """Reset for a new drive (reads maps and origin, not channel data)."""
+
+    @abstractmethod
+    def process(self, measurement: Measurement) -> list[OutputRow]:
+        """Take one measurement; return the outputs of epochs now complete."""
+
+    @abstractmethod
+    def finish(self) -> Estimate:
+        """Flush and return the whole estimate."""
+
+    # -- offline --------------------------------------------------------------
+    def run(self, drive: Drive) -> Estimate:
+        """Process a whole drive in arrival order and return the estimate."""
+        drive = self.prepare(drive)
+        t0 = time.perf_counter()
+        self.start(drive)
+        for m in drive.measurements(self.channels_used(drive)):
+            self.process(m)
+        est = self.finish()
+        return _with_wall_time(est, time.perf_counter() - t0)
+
+
+def _with_wall_time(est: Estimate, wall_time_s: float) -> Estimate:
+    from dataclasses import replace
+
+    return replace(est, wall_time_s=wall_time_s)

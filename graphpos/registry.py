@@ -1,0 +1,33 @@
+"""Estimators by name.
+
+Each estimator family exports ``ESTIMATORS`` (name -> class) from its
+package: ``filters`` (the papers' Kalman filters) and ``graphpos.graph``
+(factor graphs). The core does not import them at module load, so the
+dependency arrow stays ``estimators -> core``.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from graphpos.errors import ConfigError
+from graphpos.estimator import Estimator
+
+_FAMILIES = ("filters", "graphpos.graph")
+
+
+def estimator_classes() -> dict[str, type[Estimator]]:
+    """Every registered estimator class, by name, in registration order."""
+    classes: dict[str, type[Estimator]] = {}
+    for module_name in _FAMILIES:
+        module = importlib.import_module(module_name)
+        classes.update(getattr(module, "ESTIMATORS", {}))
+    return classes
+
+
+def make_estimator(name: str, **kwargs) -> Estimator:
+    """Build an estimator by name; a clear error for an unknown one."""
+    classes = estimator_classes()
+    if name not in classes:
+        raise ConfigError(f"unknown estimator '{name}' (known: {', '.join(classes)})")
+    return classes[name](**kwargs)
