@@ -18,6 +18,7 @@ from graphpos.errors import GraphposError
 
 #: Command-group modules, in the order their commands appear in --help.
 _COMMAND_MODULES = (
+    "graphpos.cli.sim",
     "graphpos.cli.drives",
     "graphpos.cli.ranging",
     "graphpos.cli.estimators",
