@@ -58,11 +58,12 @@ _NORTH = ColumnSpec("north_m", -1e7, 1e7)
 
 #: Column specs of every channel, in storage order. ``t_s`` is first.
 CHANNEL_SPECS: dict[str, tuple[ColumnSpec, ...]] = {
-    # Body-frame specific force (x forward, y left) and yaw rate.
+    # Body-frame specific force (x forward, y left) and yaw rate. A source
+    # with a gyro but no accelerometers (the Plaza data) leaves them NaN.
     "imu": (
         _T,
-        ColumnSpec("accel_x_mps2", -50.0, 50.0),
-        ColumnSpec("accel_y_mps2", -50.0, 50.0),
+        ColumnSpec("accel_x_mps2", -50.0, 50.0, required=False),
+        ColumnSpec("accel_y_mps2", -50.0, 50.0, required=False),
         ColumnSpec("yaw_rate_radps", -10.0, 10.0),
     ),
     # Speed along the body x axis from the wheel encoders (negative: reverse).
@@ -476,6 +477,11 @@ class Drive:
     def has(self, channel: str) -> bool:
         """True when the channel is present with at least one row."""
         return channel in self.channels and len(self.channels[channel]) > 0
+
+    @property
+    def has_accelerometers(self) -> bool:
+        """True when the ``imu`` channel carries accelerometer readings."""
+        return self.has("imu") and bool(np.isfinite(self.channels["imu"].accel_x_mps2).all())
 
     def __getattr__(self, name: str) -> Channel:
         # drive.imu, drive.truth ... for present channels
