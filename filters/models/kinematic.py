@@ -22,8 +22,13 @@ from __future__ import annotations
 
 import numpy as np
 
-#: Indices of the song2014 6-state.
-PE, PN, VE, VN, PSI, OMEGA = range(6)
+from filters.models.measurements import compass_yaw, position_fix, wheel_speed
+from filters.models.vehicle import PE, PN, VE, VN, improved_motion
+from filters.models.vehicle import YAW as PSI
+
+#: Index of the yaw rate in the song2014 6-state (the first five entries are
+#: song2016's 5-state, :mod:`filters.models.vehicle`).
+OMEGA = 5
 #: Indices of the liu2016 6-state.
 XE, CVE, AE, XN, CVN, AN = range(6)
 
@@ -47,6 +52,9 @@ def ca_transition(x: np.ndarray, u: np.ndarray, dt_s: float) -> tuple[np.ndarray
         p'  = p + v T + a T^2 / 2,   v' = v + a T,
         psi' = psi + omega T,        omega' = omega
 
+    This is song2016 eq. 16 (:func:`filters.models.vehicle.improved_motion`)
+    with the yaw rate taken from the state instead of the gyro.
+
     Parameters
     ----------
     x : (6,) state ``[p_e, p_n, v_e, v_n, psi, omega]``
@@ -60,33 +68,9 @@ def ca_transition(x: np.ndarray, u: np.ndarray, dt_s: float) -> tuple[np.ndarray
     A : (6, 6) Jacobian with respect to ``x``
     B : (6, 2) Jacobian with respect to ``u``
     """
-    T = dt_s
-    c, s = np.cos(x[PSI]), np.sin(x[PSI])
-    ax, ay = u[0], u[1]
-    ae = ax * c - ay * s
-    an = ax * s + ay * c
-    x_next = np.array(
-        [
-            x[PE] + x[VE] * T + 0.5 * ae * T * T,
-            x[PN] + x[VN] * T + 0.5 * an * T * T,
-            x[VE] + ae * T,
-            x[VN] + an * T,
-            x[PSI] + x[OMEGA] * T,
-            x[OMEGA],
-        ]
-    )
-    A = np.eye(6)
-    A[PE, VE] = A[PN, VN] = A[PSI, OMEGA] = T
-    dae, dan = -an, ae  # d(a_e)/dpsi, d(a_n)/dpsi
-    A[PE, PSI] = 0.5 * T * T * dae
-    A[PN, PSI] = 0.5 * T * T * dan
-    A[VE, PSI] = T * dae
-    A[VN, PSI] = T * dan
-    R = np.array([[c, -s], [s, c]])  # d[a_e, a_n]/d[a_x, a_y]
-    B = np.zeros((6, 2))
-    B[PE:PN + 1] = 0.5 * T * T * R
-    B[VE:VN + 1] = T * R
-    return x_next, A, B
+    x_next, (A, G) = improved_motion(x, (u[0], u[1], x[OMEGA]), dt_s)
+    A[PSI, OMEGA] = dt_s
+    return x_next, A, G[:, :2]
 
 
 # ---------------------------------------------------------------------------
@@ -183,7 +167,8 @@ def position_speed_yaw_observation(x: np.ndarray, rows: np.ndarray | None = None
     """song2014 eq. (24) (reconstructed): ``h(x) = [p_e, p_n, v_wheel, psi]``.
 
     ``v_wheel = v_e cos psi + v_n sin psi`` is the speed along the body x
-    axis. Noise is additive.
+    axis. Noise is additive. The rows are song2016's measurement models
+    (:mod:`filters.models.measurements`) stacked.
 
     Parameters
     ----------
@@ -197,14 +182,11 @@ def position_speed_yaw_observation(x: np.ndarray, rows: np.ndarray | None = None
     z_pred : (len(rows),)
     H : (len(rows), 6) Jacobian
     """
-    c, s = np.cos(x[PSI]), np.sin(x[PSI])
-    z = np.array([x[PE], x[PN], x[VE] * c + x[VN] * s, x[PSI]])
-    H = np.zeros((4, 6))
-    H[OBS_POSITION_E, PE] = 1.0
-    H[OBS_POSITION_N, PN] = 1.0
-    H[OBS_SPEED, VE], H[OBS_SPEED, VN] = c, s
-    H[OBS_SPEED, PSI] = -x[VE] * s + x[VN] * c
-    H[OBS_YAW, PSI] = 1.0
+    p, Hp = position_fix(x)
+    v, Hv = wheel_speed(x)
+    psi, Hpsi = compass_yaw(x)
+    z = np.array([p[0], p[1], v, psi])
+    H = np.vstack([Hp, Hv, Hpsi])
     if rows is None:
         return z, H
     return z[rows], H[rows]

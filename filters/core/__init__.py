@@ -1,0 +1,1 @@
+"""Generic estimation cores (state-size agnostic): EKF, UKF, federated fusion."""

@@ -1,0 +1,98 @@
+"""Extended Kalman filter steps and chi-square gating (song2016 eq. 11-15).
+
+Plain functions on ``(x, P)`` arrays of any size, so every EKF-like filter
+of the project (RFID-EKF, Fusion-EKF, the two-level EKF, the STEKF and the
+federated KF of the other papers) shares them. Models come from
+:mod:`filters.models` and supply the predicted value and the Jacobians.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from typing import Callable, NamedTuple
+
+import numpy as np
+from scipy.stats import chi2
+
+
+class Update(NamedTuple):
+    """Result of a measurement update."""
+
+    x: np.ndarray
+    P: np.ndarray
+    #: Normalised innovation squared ``nu^T S^-1 nu`` of the rows applied.
+    nis: float
+
+
+def predict(x_next: np.ndarray, F: np.ndarray, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Time update, song2016 eq. 11-12: ``x = f(x)`` (given), ``P = F P F^T + Q``."""
+    return x_next, F @ P @ F.T + Q
+
+
+def update(
+    x: np.ndarray,
+    P: np.ndarray,
+    z: np.ndarray,
+    z_pred: np.ndarray,
+    H: np.ndarray,
+    R: np.ndarray,
+    residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+) -> Update:
+    """Measurement update, song2016 eq. 13-15.
+
+    Parameters
+    ----------
+    x, P : (n,), (n, n)
+        Prior.
+    z, z_pred : (m,)
+        Measurement and its prediction ``h(x)``.
+    H : (m, n)
+        Jacobian of ``h`` at ``x``.
+    R : (m, m) or (m,)
+        Measurement covariance (a vector is its diagonal).
+    residual : callable, optional
+        ``residual(z, z_pred)``, e.g. :func:`filters.models.angles.angle_residual`
+        for a yaw measurement; plain subtraction by default.
+
+    Notes
+    -----
+    The covariance is updated in the Joseph form
+    ``(I - K H) P (I - K H)^T + K R K^T``, algebraically eq. 15 and kept
+    symmetric and positive in floating point.
+    """
+    nu = residual(z, z_pred) if residual is not None else z - z_pred
+    nu = np.atleast_1d(nu)
+    R = np.diag(R) if np.ndim(R) == 1 else np.atleast_2d(R)
+    PHt = P @ H.T
+    S = H @ PHt + R
+    S_inv = np.linalg.inv(S)
+    K = PHt @ S_inv
+    I_KH = np.eye(x.shape[0]) - K @ H
+    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
+    return Update(x + K @ nu, 0.5 * (P_new + P_new.T), float(nu @ S_inv @ nu))
+
+
+@lru_cache(maxsize=64)
+def chi2_threshold(probability: float, dof: int = 1) -> float:
+    """The chi-square quantile a gate of this probability accepts below."""
+    return float(chi2.ppf(probability, dof))
+
+
+def gate_scalar_rows(nu: np.ndarray, S_diag: np.ndarray, probability: float) -> np.ndarray:
+    """Chi-square gate for measurement rows taken one at a time.
+
+    Parameters
+    ----------
+    nu : (m,) innovations
+    S_diag : (m,) their predicted variances ``H_i P H_i^T + R_i``
+    probability : float
+        Gate probability (0.997 accepts 99.7 % of consistent rows). A value
+        of 1 or more disables the gate.
+
+    Returns
+    -------
+    (m,) bool : rows that pass.
+    """
+    if probability >= 1.0:
+        return np.ones(np.shape(nu), dtype=bool)
+    return nu * nu <= chi2_threshold(probability, 1) * S_diag

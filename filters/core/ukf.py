@@ -1,0 +1,165 @@
+"""Unscented Kalman filter with the scaled unscented transform.
+
+The song2016 UKF equations (21)-(33) are garbled in print; this is the
+standard scaled unscented transform of Wan & van der Merwe (2000), the form
+filterpy's ``MerweScaledSigmaPoints`` / ``UnscentedKalmanFilter`` implement
+(the tests check step-by-step agreement), with
+
+* ``P_xz = sum Wc (chi - x)(Z - z)^T`` (eq. 30 as printed multiplies two sums);
+* ``P = P_prior - K P_zz K^T`` (eq. 33 prints ``+``, a misprint);
+* angle components (yaw) averaged on the circle and their residuals wrapped.
+
+The update draws its sigma points from the current mean and covariance
+(the prior including Q), as filterpy does, so consecutive updates at one
+time (wheel speed and compass) are handled alike.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Sequence
+
+import numpy as np
+
+from filters.core.ekf import gate_scalar_rows
+from filters.models.angles import angle_residual, circular_mean, wrap_angle
+
+
+class MerweScaledSigmaPoints:
+    """Scaled sigma points (Wan & van der Merwe), ``2n+1`` of them.
+
+    ``lambda = alpha^2 (n + kappa) - n``; ``chi_0 = x``,
+    ``chi_i = x +- (sqrt((n + lambda) P))_i`` with the columns of the lower
+    Cholesky factor; ``Wm_0 = lambda / (n + lambda)``,
+    ``Wc_0 = Wm_0 + 1 - alpha^2 + beta``, ``W_i = 1 / (2 (n + lambda))``.
+
+    Parameters
+    ----------
+    n : int
+        State size.
+    alpha, beta, kappa : float
+        Spread, prior-knowledge (2 for Gaussians) and secondary scaling.
+    """
+
+    def __init__(self, n: int, alpha: float = 0.5, beta: float = 2.0, kappa: float = 0.0):
+        self.n = n
+        self.alpha, self.beta, self.kappa = alpha, beta, kappa
+        lam = alpha * alpha * (n + kappa) - n
+        self.scale = n + lam
+        self.Wm = np.full(2 * n + 1, 0.5 / self.scale)
+        self.Wc = self.Wm.copy()
+        self.Wm[0] = lam / self.scale
+        self.Wc[0] = lam / self.scale + 1.0 - alpha * alpha + beta
+
+    def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
+        """(2n+1, n) sigma points of ``N(x, P)``."""
+        L = np.linalg.cholesky(self.scale * P)
+        out = np.empty((2 * self.n + 1, self.n))
+        out[0] = x
+        out[1 : self.n + 1] = x + L.T
+        out[self.n + 1 :] = x - L.T
+        return out
+
+
+def _mean(points: np.ndarray, Wm: np.ndarray, angles: Sequence[int]) -> np.ndarray:
+    m = Wm @ points
+    for i in angles:
+        m[i] = circular_mean(points[:, i], Wm)
+    return m
+
+
+def _deviations(points: np.ndarray, mean: np.ndarray, angles: Sequence[int]) -> np.ndarray:
+    d = points - mean
+    for i in angles:
+        d[:, i] = angle_residual(points[:, i], mean[i])
+    return d
+
+
+class UnscentedKalmanFilter:
+    """An additive-noise UKF on a state of any size.
+
+    Parameters
+    ----------
+    x0, P0 : initial mean and covariance.
+    points : MerweScaledSigmaPoints
+        The sigma-point strategy.
+    angle_states : sequence of int
+        State indices that are angles (averaged on the circle, wrapped).
+    """
+
+    def __init__(self, x0: np.ndarray, P0: np.ndarray, points: MerweScaledSigmaPoints, angle_states: Sequence[int] = ()):
+        self.x = np.array(x0, dtype=np.float64)
+        self.P = np.array(P0, dtype=np.float64)
+        self.points = points
+        self.angle_states = tuple(angle_states)
+
+    def reset(self, x: np.ndarray, P: np.ndarray) -> None:
+        """Replace the estimate (federated reset)."""
+        self.x = np.array(x, dtype=np.float64)
+        self.P = np.array(P, dtype=np.float64)
+
+    def predict(self, fx: Callable[[np.ndarray], np.ndarray], Q: np.ndarray) -> None:
+        """Time update: propagate the sigma points through ``fx`` (vectorised over rows)."""
+        pts = fx(self.points.sigma_points(self.x, self.P))
+        x = _mean(pts, self.points.Wm, self.angle_states)
+        d = _deviations(pts, x, self.angle_states)
+        self.P = d.T @ (self.points.Wc[:, None] * d) + Q
+        for i in self.angle_states:
+            x[i] = wrap_angle(float(x[i]))
+        self.x = x
+
+    def update(
+        self,
+        z: np.ndarray,
+        hx: Callable[[np.ndarray], np.ndarray],
+        R: np.ndarray,
+        angle_measurements: Sequence[int] = (),
+        gate_probability: float = 1.0,
+    ) -> tuple[float, np.ndarray]:
+        """Measurement update.
+
+        Parameters
+        ----------
+        z : (m,) measurement
+        hx : callable
+            ``(k, n) -> (k, m)`` measurement function over sigma points.
+        R : (m,) or (m, m)
+            Measurement covariance (a vector is its diagonal).
+        angle_measurements : sequence of int
+            Measurement indices that are angles.
+        gate_probability : float
+            Per-row chi-square gate on ``nu_i^2 / P_zz,ii``; 1 disables it.
+            Gated rows are dropped before the update.
+
+        Returns
+        -------
+        nis : float
+            Normalised innovation squared of the applied rows (0 if none).
+        accepted : (m,) bool
+        """
+        sig = self.points.sigma_points(self.x, self.P)
+        Wm, Wc = self.points.Wm, self.points.Wc
+        Z = np.atleast_2d(hx(sig).reshape(sig.shape[0], -1))
+        z = np.atleast_1d(np.asarray(z, dtype=np.float64))
+        R = np.diag(R) if np.ndim(R) == 1 else np.atleast_2d(R)
+        z_mean = _mean(Z, Wm, angle_measurements)
+        dz = _deviations(Z, z_mean, angle_measurements)
+        Pzz = dz.T @ (Wc[:, None] * dz) + R
+        nu = z - z_mean
+        for i in angle_measurements:
+            nu[i] = angle_residual(float(z[i]), float(z_mean[i]))
+        accepted = gate_scalar_rows(nu, np.diag(Pzz).copy(), gate_probability)
+        if not accepted.any():
+            return 0.0, accepted
+        if not accepted.all():
+            dz, nu = dz[:, accepted], nu[accepted]
+            Pzz = Pzz[np.ix_(accepted, accepted)]
+        dx = _deviations(sig, self.x, self.angle_states)
+        Pxz = dx.T @ (Wc[:, None] * dz)
+        Pzz_inv = np.linalg.inv(Pzz)
+        K = Pxz @ Pzz_inv
+        x = self.x + K @ nu
+        for i in self.angle_states:
+            x[i] = wrap_angle(float(x[i]))
+        P = self.P - K @ Pzz @ K.T
+        self.x, self.P = x, 0.5 * (P + P.T)
+        return float(nu @ Pzz_inv @ nu), accepted

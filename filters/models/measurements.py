@@ -1,0 +1,106 @@
+"""Measurement models with analytic Jacobians.
+
+They index the state by the positions of :mod:`filters.models.vehicle`
+(``p_e, p_n`` at 0, 1; ``v_e, v_n, psi`` at 2, 3, 4), so they serve the
+2-state RFID model (ranges and fixes only), the 5-state model and any larger
+state that starts with these entries. ``x`` may be one state ``(n,)`` or a
+stack ``(k, n)``; Jacobians are returned for a single state only, and
+skipped with ``jacobian=False``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from filters.models.vehicle import PE, PN, VE, VN, YAW
+
+#: Below this distance (m) a range Jacobian uses the floor (reader on the tag).
+_MIN_RANGE_M = 1e-6
+
+
+def tag_range(x: np.ndarray, tags_en_m: np.ndarray, jacobian: bool = True):
+    """Ranges to tags, song2016 eq. 10/17/19 (and song2016b eq. 10).
+
+    ``h_i = sqrt((p_e - x_i)^2 + (p_n - y_i)^2)``. The paper prints the
+    noise ``n_ri`` inside the square root; it is additive outside it
+    (``r_i = h_i + n_ri``), as song2016b prints it.
+
+    Parameters
+    ----------
+    x : (n,) or (k, n) array
+    tags_en_m : (m, 2) array
+        Tag east/north.
+
+    Returns
+    -------
+    ranges_m : (m,) or (k, m) array
+    H : (m, n) array or None
+        Rows ``[(p_e - x_i)/D_i, (p_n - y_i)/D_i, 0, ...]`` (song2016 H_RFID).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    tags = np.asarray(tags_en_m, dtype=np.float64).reshape(-1, 2)
+    de = x[..., PE, None] - tags[:, 0]
+    dn = x[..., PN, None] - tags[:, 1]
+    r = np.sqrt(de * de + dn * dn)
+    if not jacobian:
+        return r, None
+    if x.ndim != 1:
+        raise ValueError("Jacobians are computed for a single state")
+    d = np.maximum(r, _MIN_RANGE_M)
+    H = np.zeros((tags.shape[0], x.shape[0]))
+    H[:, PE] = de / d
+    H[:, PN] = dn / d
+    return r, H
+
+
+def wheel_speed(x: np.ndarray, jacobian: bool = True):
+    """Wheel speed along the body x axis, song2016 eq. 17/20: ``v_e cos psi + v_n sin psi``.
+
+    Returns
+    -------
+    speed_mps : float or (k,) array
+    H : (1, n) array or None
+    """
+    x = np.asarray(x, dtype=np.float64)
+    c, s = np.cos(x[..., YAW]), np.sin(x[..., YAW])
+    v = x[..., VE] * c + x[..., VN] * s
+    if not jacobian:
+        return v, None
+    H = np.zeros((1, x.shape[-1]))
+    H[0, VE] = c
+    H[0, VN] = s
+    H[0, YAW] = -x[VE] * s + x[VN] * c
+    return v, H
+
+
+def compass_yaw(x: np.ndarray, jacobian: bool = True):
+    """Compass yaw, song2016 eq. 17/20: ``psi``. Innovations must be wrapped
+    (:func:`filters.models.angles.angle_residual`).
+
+    Returns
+    -------
+    yaw_rad : float or (k,) array
+    H : (1, n) array or None
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if not jacobian:
+        return x[..., YAW], None
+    H = np.zeros((1, x.shape[-1]))
+    H[0, YAW] = 1.0
+    return x[..., YAW], H
+
+
+def position_fix(x: np.ndarray, jacobian: bool = True):
+    """A position fix (song2016b eq. 17 rows 1-2, an RSU or GNSS fix): ``[p_e, p_n]``.
+
+    Returns
+    -------
+    en_m : (2,) or (k, 2) array
+    H : (2, n) array or None
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if not jacobian:
+        return x[..., :2].copy(), None
+    H = np.zeros((2, x.shape[-1]))
+    H[0, PE] = H[1, PN] = 1.0
+    return x[..., :2].copy(), H

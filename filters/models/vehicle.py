@@ -1,0 +1,165 @@
+"""Vehicle process models (song2016), with analytic Jacobians.
+
+State order, shared by every 5-state estimator (and the first five entries of
+the 6-state kinematic models of song2014)::
+
+    x = [p_e, p_n, v_e, v_n, psi]      metres, m/s, radians (yaw from east, CCW)
+
+Functions take ``x`` of shape ``(n,)`` or a stack ``(k, n)`` (sigma points)
+and return ``(value, jacobian)``; ``jacobian=False`` skips the Jacobian
+(``None`` is returned in its place), which the unscented filters use.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Indices into the state vector.
+PE, PN, VE, VN, YAW = 0, 1, 2, 3, 4
+STATE_SIZE = 5
+
+
+def body_to_en(accel_x_mps2, accel_y_mps2, yaw_rad):
+    """Body-frame accelerations to east/north (project convention).
+
+    ``a_e = a_x cos psi - a_y sin psi``, ``a_n = a_x sin psi + a_y cos psi``.
+    """
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    return accel_x_mps2 * c - accel_y_mps2 * s, accel_x_mps2 * s + accel_y_mps2 * c
+
+
+def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = True):
+    """song2016 eq. 16, the improved vehicle motion model, in state order.
+
+    Parameters
+    ----------
+    x : (..., 5) array
+        ``[p_e, p_n, v_e, v_n, psi]``.
+    u : (3,) array
+        Input ``[a_x, a_y, w_z]``: body accelerations (m/s^2) and yaw rate
+        (rad/s), held constant over the step.
+    dt_s : float
+        Step T.
+
+    Returns
+    -------
+    x_next : (..., 5) array
+    jacobians : tuple (F, G) or None
+        ``F = d x_next / d x`` (5, 5) and ``G = d x_next / d u`` (5, 3), for a
+        single state only.
+
+    Notes
+    -----
+    The paper prints the rows in the order p_e, v_e, p_n, v_n, psi; here they
+    are in state order. It prints ``psi(k) = psi(k-1) + w_z``: the step T is
+    missing (a rate times no time is not an angle), so ``psi += w_z T``.
+    song2016b eq. 16 prints ``e(k-1)``, ``n(k-1)`` in rows 2 and 4 where the
+    velocities are meant. Yaw is not wrapped here; filters wrap it.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    ax, ay, wz = float(u[0]), float(u[1]), float(u[2])
+    yaw = x[..., YAW]
+    a_e, a_n = body_to_en(ax, ay, yaw)
+    half_t2 = 0.5 * dt_s * dt_s
+    out = np.empty_like(x)
+    out[..., PE] = x[..., PE] + x[..., VE] * dt_s + half_t2 * a_e
+    out[..., PN] = x[..., PN] + x[..., VN] * dt_s + half_t2 * a_n
+    out[..., VE] = x[..., VE] + a_e * dt_s
+    out[..., VN] = x[..., VN] + a_n * dt_s
+    out[..., YAW] = yaw + wz * dt_s
+    out[..., 5:] = x[..., 5:]
+    if not jacobian:
+        return out, None
+    if x.ndim != 1:
+        raise ValueError("Jacobians are computed for a single state")
+    c, s = np.cos(yaw), np.sin(yaw)
+    F = np.eye(x.shape[0])
+    F[PE, VE] = F[PN, VN] = dt_s
+    # d a_e / d psi = -a_n, d a_n / d psi = a_e
+    F[PE, YAW] = -half_t2 * a_n
+    F[PN, YAW] = half_t2 * a_e
+    F[VE, YAW] = -dt_s * a_n
+    F[VN, YAW] = dt_s * a_e
+    G = np.zeros((x.shape[0], 3))
+    G[PE, :2] = half_t2 * c, -half_t2 * s
+    G[PN, :2] = half_t2 * s, half_t2 * c
+    G[VE, :2] = dt_s * c, -dt_s * s
+    G[VN, :2] = dt_s * s, dt_s * c
+    G[YAW, 2] = dt_s
+    return out, (F, G)
+
+
+def rotating_velocity_motion(x: np.ndarray, yaw_rate_radps: float, dt_s: float, jacobian: bool = True):
+    """Fallback of eq. 16 for an IMU without accelerometers (yaw rate only).
+
+    The velocity keeps its magnitude and turns with the measured yaw rate
+    (the vehicle does not slip sideways), the position integrates it:
+    ``v(k) = R(w_z T) v(k-1)``, ``p(k) = p(k-1) + v(k-1) T``,
+    ``psi(k) = psi(k-1) + w_z T``. Speed changes are left to the process
+    noise and corrected by the wheel-speed updates. This is the project's
+    documented fallback, not a paper equation (the Plaza data has no
+    accelerometers).
+
+    Returns
+    -------
+    x_next : (..., 5) array
+    jacobian : (5, 5) array or None
+        ``d x_next / d x`` for a single state; ``d x_next / d w_z`` is
+        ``G[:, 0]`` of :func:`rotating_velocity_input_jacobian`.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    dpsi = yaw_rate_radps * dt_s
+    c, s = np.cos(dpsi), np.sin(dpsi)
+    out = np.empty_like(x)
+    out[..., PE] = x[..., PE] + x[..., VE] * dt_s
+    out[..., PN] = x[..., PN] + x[..., VN] * dt_s
+    out[..., VE] = c * x[..., VE] - s * x[..., VN]
+    out[..., VN] = s * x[..., VE] + c * x[..., VN]
+    out[..., YAW] = x[..., YAW] + dpsi
+    out[..., 5:] = x[..., 5:]
+    if not jacobian:
+        return out, None
+    F = np.eye(x.shape[-1])
+    F[PE, VE] = F[PN, VN] = dt_s
+    F[VE, VE], F[VE, VN], F[VN, VE], F[VN, VN] = c, -s, s, c
+    return out, F
+
+
+def rotating_velocity_input_jacobian(x: np.ndarray, yaw_rate_radps: float, dt_s: float) -> np.ndarray:
+    """``d x_next / d w_z`` of :func:`rotating_velocity_motion`, shape (n, 1)."""
+    dpsi = yaw_rate_radps * dt_s
+    c, s = np.cos(dpsi), np.sin(dpsi)
+    G = np.zeros((x.shape[-1], 1))
+    G[VE, 0] = dt_s * (-s * x[VE] - c * x[VN])
+    G[VN, 0] = dt_s * (c * x[VE] - s * x[VN])
+    G[YAW, 0] = dt_s
+    return G
+
+
+def random_walk(x: np.ndarray, dt_s: float, jacobian: bool = True):
+    """song2016 eq. 10: ``X(k) = A X(k-1) + W`` with ``A = I`` (position random walk).
+
+    Returns the state unchanged and ``F = I``; the motion lives in the
+    process noise (see :func:`random_walk_noise`).
+    """
+    x = np.asarray(x, dtype=np.float64)
+    return x.copy(), (np.eye(x.shape[-1]) if jacobian else None)
+
+
+def random_walk_noise(n: int, speed_sigma_mps: float, dt_s: float) -> np.ndarray:
+    """Process noise of eq. 10: a displacement of 1-sigma ``speed_sigma_mps * dt`` per axis.
+
+    The paper gives no Q_RFID; a random walk must let the position move by
+    about the vehicle's speed over a step, so Q is ``(sigma_v dt)^2 I``.
+    """
+    return np.eye(n) * (speed_sigma_mps * dt_s) ** 2
+
+
+def input_noise(G: np.ndarray, input_sigmas: np.ndarray) -> np.ndarray:
+    """Process noise from noisy inputs: ``Q = G diag(sigma_u^2) G^T``.
+
+    Each IMU sample carries its own noise (song2016 §6: 0.1 m/s^2, 0.2 deg/s,
+    1-sigma), so a step driven by one sample has this covariance.
+    """
+    Gs = G * np.asarray(input_sigmas, dtype=np.float64)
+    return Gs @ Gs.T
