@@ -173,6 +173,8 @@ class Channel:
 
     # -- access -------------------------------------------------------------
     def __getattr__(self, name: str) -> np.ndarray:
+        if name.startswith("_"):  # pickle probes __setstate__ etc. before _columns exists
+            raise AttributeError(name)
         try:
             return self._columns[name]
         except KeyError:
