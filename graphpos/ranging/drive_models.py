@@ -1,0 +1,128 @@
+"""Range models for a drive: the default one, one calibrated per environment, one fitted to a drive.
+
+A drive whose radio reports ranges (``rfid.range_m``) uses them through a
+:class:`~graphpos.ranging.model.LinearCalibration`, the identity by default.
+A drive whose radio reports RSS is converted by an LSSVM (song2016 §3) fitted
+offline on simulated calibration data of its environment (song2016 §6.1):
+the averaged collection of four tags trains the model, and the individual
+1 Hz readings of a second collection, with four other tags, give its 1-sigma
+(a drive's tags are not the calibration tags, and a drive's readings are not
+averaged, so only such held-out readings make the sigma honest).
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import Any
+
+import numpy as np
+
+from graphpos.drive import Drive
+from graphpos.errors import ConfigError, MissingChannelError
+from graphpos.ranging.calibration_data import simulate_collection
+from graphpos.ranging.lssvm import LssvmRangeModel
+from graphpos.ranging.model import LinearCalibration, RangeModel
+from graphpos.ranging.propagation import PropagationRangeModel
+from graphpos.ranging.rss_model import RssRangeModel
+
+#: Seed of the simulated calibration collections behind the default models.
+CALIBRATION_SEED = 2016
+
+#: Model kinds :func:`fit_from_drive` can fit.
+FIT_KINDS = ("auto", "lssvm", "propagation", "linear")
+
+_RSS_KINDS: dict[str, type[RssRangeModel]] = {"lssvm": LssvmRangeModel, "propagation": PropagationRangeModel}
+
+
+def calibrated_model(environment: str, kind: str = "lssvm", seed: int = CALIBRATION_SEED) -> RssRangeModel:
+    """An RSS model fitted on a simulated calibration collection (song2016 §6.1).
+
+    Trained on the averaged RSS of collection ``[seed, 0]``; its 1-sigma is
+    learned from the individual readings of collection ``[seed, 1]`` (other
+    tags). Cached per (environment, kind, seed); each call returns a copy.
+    """
+    return type(_calibrated(environment, kind, seed)).from_dict(_calibrated(environment, kind, seed).to_dict())
+
+
+@functools.cache
+def _calibrated(environment: str, kind: str, seed: int) -> RssRangeModel:
+    if kind not in _RSS_KINDS:
+        raise ConfigError(f"unknown RSS model kind '{kind}' (known: {', '.join(_RSS_KINDS)})")
+    train = simulate_collection(environment, [seed, 0])
+    held_out = simulate_collection(environment, [seed, 1])
+    model = _RSS_KINDS[kind]().fit(train.mean_rss, train.distance_m)
+    return model.fit_sigma(held_out.readings.ravel(), held_out.reading_distance_m)
+
+
+def _reports_ranges(drive: Drive) -> bool:
+    return drive.has("rfid") and bool(np.isfinite(drive.rfid.range_m).any())
+
+
+def default_range_model(drive: Drive) -> RangeModel:
+    """The range model a drive is used with when the user gives none.
+
+    Ranges reported by the radio -> identity :class:`LinearCalibration`;
+    RSS -> LSSVM calibrated in ``drive.params["rss_environment"]`` (default
+    ``"tunnel"``). A drive without RFID readings gets the identity too.
+    """
+    if not drive.has("rfid") or _reports_ranges(drive) or not np.isfinite(drive.rfid.rss).any():
+        return LinearCalibration()
+    return calibrated_model(str(drive.params.get("rss_environment", "tunnel")), "lssvm")
+
+
+def true_ranges_m(drive: Drive) -> np.ndarray:
+    """True reader-tag distance of every RFID reading.
+
+    ``rfid.true_range_m`` where given, else computed from the ``truth``
+    trajectory (interpolated at the reading time, NaN outside it) and the tag
+    map.
+
+    Raises
+    ------
+    MissingChannelError
+        No ``rfid`` channel.
+    ConfigError
+        Neither true ranges nor a truth trajectory.
+    """
+    if not drive.has("rfid"):
+        raise MissingChannelError(f"drive '{drive.name}' has no RFID readings to fit a range model to")
+    rfid = drive.rfid
+    true_m = np.array(rfid.true_range_m, dtype=np.float64)
+    missing = ~np.isfinite(true_m)
+    if missing.any() and drive.has("truth"):
+        truth = drive.truth
+        t = rfid.t_s[missing]
+        inside = (t >= truth.t_s[0]) & (t <= truth.t_s[-1])
+        east = np.interp(t, truth.t_s, truth.east_m)
+        north = np.interp(t, truth.t_s, truth.north_m)
+        tags = drive.tags.positions(rfid.tag_id[missing].astype(np.int64))
+        true_m[missing] = np.where(inside, np.hypot(east - tags[:, 0], north - tags[:, 1]), np.nan)
+    if not np.isfinite(true_m).any():
+        raise ConfigError(
+            f"drive '{drive.name}' has no truth: neither true ranges (rfid.true_range_m) nor a truth trajectory"
+        )
+    return true_m
+
+
+def fit_from_drive(drive: Drive, kind: str = "auto", **options: Any) -> RangeModel:
+    """Fit a range model to a drive's readings against its true ranges.
+
+    Parameters
+    ----------
+    drive : Drive
+        Needs RFID readings and truth (true ranges or a truth trajectory).
+    kind : {"auto", "lssvm", "propagation", "linear"}
+        ``auto``: ``linear`` when the radio reports ranges, else ``lssvm``.
+    **options
+        Passed to the model's constructor (e.g. ``seed`` for the LSSVM).
+    """
+    if kind not in FIT_KINDS:
+        raise ConfigError(f"unknown range-model kind '{kind}' (known: {', '.join(FIT_KINDS)})")
+    true_m = true_ranges_m(drive)
+    if kind == "auto":
+        kind = "linear" if _reports_ranges(drive) else "lssvm"
+    model = LinearCalibration(**options) if kind == "linear" else _RSS_KINDS[kind](**options)
+    reading = drive.rfid[model.input_column]
+    if not np.isfinite(reading).any():
+        raise ConfigError(f"drive '{drive.name}' has no '{model.input_column}' readings for a {kind} range model")
+    return model.fit(reading, true_m)
