@@ -6,4 +6,7 @@ merged here for :mod:`graphpos.registry`.
 
 from graphpos.estimator import Estimator
 
+from filters.song2016 import ESTIMATORS as _SONG2016
+
 ESTIMATORS: dict[str, type[Estimator]] = {}
+ESTIMATORS.update(_SONG2016)

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from graphpos.drive import Channel, Drive, TagMap, Window
+from graphpos.estimate import Estimate, OutputRow
+from graphpos.estimator import Estimator
 
 PLAZA = Path(__file__).resolve().parents[2] / "../shared/data/plaza/Plaza1.mat"
 
@@ -36,3 +38,49 @@ def drive() -> Drive:
 def make_drive():
     """The :func:`straight_drive` factory."""
     return straight_drive
+
+
+class NoisyTruth(Estimator):
+    """Test estimator: truth plus seeded Gaussian noise of known covariance, at 10 Hz, with velocity."""
+
+    name = "noisy-truth"
+    required_channels = ("truth",)
+    sigma_m = 0.5
+
+    @classmethod
+    def default_config(cls):
+        return None
+
+    def start(self, drive):
+        self._rng = np.random.default_rng(7)
+        self._rows = []
+
+    def process(self, m):
+        v = m.values
+        e, n = self._rng.normal(0.0, self.sigma_m, 2)
+        row = OutputRow(m.t_s, v["east_m"] + e, v["north_m"] + n, v["v_east_mps"], v["v_north_mps"], v["yaw_rad"],
+                        np.eye(2) * self.sigma_m**2)
+        self._rows.append(row)
+        return [row]
+
+    def finish(self):
+        return Estimate.from_rows(self.name, self._rows, rate_hz=10.0)
+
+
+class Broken(NoisyTruth):
+    """Test estimator that always fails."""
+
+    name = "broken"
+
+    def process(self, m):
+        raise RuntimeError("boom")
+
+
+@pytest.fixture
+def test_estimators(monkeypatch):
+    """Register the test estimators (forked pool workers and in-process Dask threads inherit this)."""
+    import graphpos.registry
+
+    classes = {**graphpos.registry.estimator_classes(), "noisy-truth": NoisyTruth, "broken": Broken}
+    monkeypatch.setattr(graphpos.registry, "estimator_classes", lambda: classes)
+    return classes

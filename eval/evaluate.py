@@ -1,0 +1,208 @@
+"""``graphpos evaluate``: estimators over recorded drives, scored and reported.
+
+Output folder layout::
+
+    results.json              every figure + provenance (versions, configs, drives)
+    report.md, report.html    tables and plots (the HTML embeds the plots)
+    <drive>/trajectories.png, error_vs_time.png, error_cdf.png, speed_error.png
+    <drive>/<estimator>.tum|.kml|.geojson|.csv   per-estimator exports
+    <drive>/all_estimates.kml  every track in one Google Earth file
+    <drive>/<drive>.mcap       the drive, its truth and every estimate (Foxglove)
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from eval import plots
+from eval.execution import FileSource, Job, JobResult, describe_source, execute, failures, provenance
+from eval.metrics import WHOLE
+from eval.report import Report, Section, fmt, write_json
+from graphpos.drive import Drive
+from graphpos.errors import MissingChannelError
+from graphpos.io.exports import export_estimate, kml_text, write_atomically
+
+
+@dataclass
+class Outcome:
+    """What a report command produced."""
+
+    results: list[JobResult]
+    folder: Path
+
+    @property
+    def failures(self) -> list[JobResult]:
+        return failures(self.results)
+
+
+def safe_name(name: str) -> str:
+    """A file-name-safe version of a drive or estimator name."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_") or "drive"
+
+
+def require_truth(drive: Drive) -> None:
+    if not drive.has("truth"):
+        raise MissingChannelError(f"evaluate needs truth: drive '{drive.name}' has no truth channel")
+
+
+def result_record(r: JobResult) -> dict[str, Any]:
+    """One result as stored in results.json."""
+    return {
+        "drive": r.drive_name,
+        "source": describe_source(r.job.source),
+        "drive_params": r.drive_params,
+        "estimator": r.job.estimator,
+        "layout": r.job.layout,
+        "range_model": r.job.range_model if isinstance(r.job.range_model, (str, type(None))) else repr(r.job.range_model),
+        "tag": r.job.tag,
+        "config": r.config,
+        "metrics": r.metrics,
+        "error": r.error,
+        "traceback": r.traceback,
+    }
+
+
+def window_table(results: list[JobResult], window: str) -> tuple[list[str], list[list[str]]]:
+    """Accuracy, speed and consistency of each estimator in one window."""
+    header = ["estimator", "max [m]", "RMS [m]", "mean [m]", "median [m]", "p95 [m]", "2DRMS [m]",
+              "east mean/STD [m]", "north mean/STD [m]", "speed err RMS [m/s]", "ANEES (95 % band)", "rate [Hz]",
+              "velocity", "wall [s]", "RTF"]
+    rows = []
+    for r in results:
+        if not r.ok:
+            rows.append([r.job.estimator, f"FAILED: {r.error}"] + [""] * (len(header) - 2))
+            continue
+        w = r.metrics["windows"].get(window)
+        if w is None:
+            continue
+        p, s, q = w["position"], w["speed"], w["nees"]
+        anees = "–" if q is None else f"{fmt(q['anees'])} ({fmt(q['band'][0])}–{fmt(q['band'][1])})"
+        rows.append([
+            r.job.estimator, fmt(p["max_m"]), fmt(p["rms_m"]), fmt(p["mean_m"]), fmt(p["median_m"]), fmt(p["p95_m"]),
+            fmt(p["drms2_m"]), f"{fmt(p['east_mean_m'])} / {fmt(p['east_std_m'])}",
+            f"{fmt(p['north_mean_m'])} / {fmt(p['north_std_m'])}", fmt(s["rms_mps"]) if s else "–", anees,
+            fmt(r.metrics["output_rate_hz"], 1), fmt(r.metrics["velocity_provided"]),
+            fmt(r.metrics["wall_time_s"]), fmt(r.metrics["real_time_factor"], 3),
+        ])
+    return header, rows
+
+
+def wheel_line(results: list[JobResult], window: str) -> str | None:
+    """The raw wheel-speed error of a window (the same for every estimator of a drive)."""
+    for r in results:
+        if r.ok and r.metrics["windows"].get(window, {}).get("wheel_speed"):
+            w = r.metrics["windows"][window]["wheel_speed"]
+            return f"Raw wheel-speed error in this window: mean {fmt(w['mean_mps'])} m/s, RMS {fmt(w['rms_mps'])} m/s."
+    return None
+
+
+def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], folder: Path,
+                       layout: str | None = None, exports: bool = True) -> Section:
+    """Tables, plots and exports of one drive."""
+    sub = folder / safe_name(drive.name)
+    sec = report.section(f"Drive {drive.name}")
+    sec.text(f"Duration {drive.duration_s:.1f} s; channels {', '.join(drive.channels)}; "
+             f"{len(drive.tags)} tags, {len(drive.rsus)} RSUs" + (f"; layout {layout}" if layout else "") + ".")
+    windows = [WHOLE] + sorted({w.label for w in drive.windows})
+    for window in windows:
+        header, rows = window_table(results, window)
+        if rows:
+            sec.table(header, rows, caption=f"Window: {window}")
+            line = wheel_line(results, window)
+            if line:
+                sec.text(line)
+    estimates = [r.estimate for r in results if r.ok and r.estimate is not None]
+    if estimates:
+        sec.figure(plots.trajectories(drive, estimates, sub / "trajectories.png", layout=layout))
+        sec.figure(plots.error_vs_time(drive, estimates, sub / "error_vs_time.png"))
+        sec.figure(plots.error_cdf(drive, estimates, sub / "error_cdf.png"))
+        speed = plots.speed_error(drive, estimates, sub / "speed_error.png")
+        if speed:
+            sec.figure(speed)
+        if exports:
+            for est in estimates:
+                export_estimate(est, drive.origin, sub, safe_name(est.name))
+            write_atomically(sub / "all_estimates.kml", kml_text(estimates, drive.origin))
+            sec.text(f"Exports in {sub.name}/: <estimator>.tum (evo), .kml (Google Earth), .geojson, .csv; "
+                     "all_estimates.kml holds every track.")
+    return sec
+
+
+def write_mcap(drive: Drive, estimates: list, path: Path) -> Path:
+    """The drive, its truth and every estimate in one MCAP, written atomically."""
+    from graphpos.io import write_drive
+
+    tmp = path.with_name(f".{path.name}.tmp")
+    write_drive(tmp, drive, estimates=estimates)
+    tmp.replace(path)
+    return path
+
+
+def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Path, layout: str | None = None,
+             range_model: Any = None, workers: int | None = None, scheduler: str | None = None,
+             progress: bool = True, mcap: bool = True) -> Outcome:
+    """Run ``estimators`` on ``drives`` and write the evaluation folder.
+
+    Parameters
+    ----------
+    drives : list of (source, Drive)
+        The job source for the workers (a :class:`FileSource`, or the drive
+        itself) and the drive as loaded here (for plots and exports).
+    estimators : list of str
+    folder : Path
+    layout, range_model, workers, scheduler : see :class:`eval.execution.Job` and :func:`eval.execution.execute`.
+    mcap : bool
+        Write the combined MCAP per drive.
+    """
+    for _, drive in drives:
+        require_truth(drive)
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    jobs = [
+        Job(source, name, layout=layout, range_model=range_model, keep_estimate=True, tag={"drive_index": i})
+        for i, (source, _) in enumerate(drives)
+        for name in estimators
+    ]
+    results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="evaluate")
+    report = Report("graphpos evaluation")
+    report.section("Set-up").text(
+        f"Estimators: {', '.join(estimators)}. Errors are absolute (estimate minus truth interpolated at the "
+        "estimate epochs, no alignment). 2DRMS = 2 x RMS of the horizontal error. ANEES band: two-sided 95 % "
+        "chi-square band for independent epochs. RTF = wall time / drive duration."
+    )
+    for i, (_, drive) in enumerate(drives):
+        mine = [r for r in results if r.job.tag["drive_index"] == i]
+        add_drive_sections(report, drive, mine, folder, layout=layout)
+        if mcap:
+            ests = [r.estimate for r in mine if r.ok]
+            write_mcap(drive, ests, folder / safe_name(drive.name) / f"{safe_name(drive.name)}.mcap")
+    add_failure_section(report, results)
+    write_json(folder / "results.json", {
+        "command": "evaluate",
+        "provenance": provenance(),
+        "estimators": estimators,
+        "layout": layout,
+        "drives": [describe_source(s) | {"name": d.name, "params": d.params} for s, d in drives],
+        "results": [result_record(r) for r in results],
+    })
+    report.write(folder)
+    return Outcome(results, folder)
+
+
+def add_failure_section(report: Report, results: list[JobResult]) -> None:
+    """List every failed run (nothing when all ran)."""
+    failed = failures(results)
+    if failed:
+        sec = report.section("Failures")
+        sec.table(["drive", "estimator", "error"],
+                  [[str(r.drive_name or describe_source(r.job.source)), r.job.estimator, r.error or ""] for r in failed])
+
+
+def file_sources(paths: list[str]) -> list[tuple[FileSource, Drive]]:
+    """Read each drive file here (to check it and plot it) and name it as the workers' source."""
+    from graphpos.io import read_drive
+
+    return [(FileSource(str(Path(p).resolve())), read_drive(p)) for p in paths]

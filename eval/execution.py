@@ -1,0 +1,252 @@
+"""Run (drive, estimator) jobs on a local process pool or a Dask cluster.
+
+A job names where its drive comes from (a file, a simulation recipe, or the
+drive itself) rather than carrying it, so a sweep of hundreds of simulated
+drives ships a few bytes per job and each worker builds its drive, keeping
+a small cache so that several estimators on the same drive do not rebuild it.
+The worker scores the estimate against the truth itself
+(:func:`eval.metrics.evaluate_estimate`) and sends back the figures, and the
+estimate only when asked (plots and exports need it; big sweeps do not).
+
+A failing job does not stop the sweep: its result carries the error (a
+:class:`~graphpos.errors.GraphposError` message, or the exception type,
+message and traceback of anything else), and the callers report it.
+
+Both back-ends are a :class:`concurrent.futures.Executor`: a
+:class:`~concurrent.futures.ProcessPoolExecutor` by default, or
+``distributed.Client(address).get_executor()`` when a scheduler address is
+given.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import os
+import time
+import traceback
+from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Iterator
+
+from tqdm import tqdm
+
+from graphpos.drive import Drive
+from graphpos.errors import ConfigError, GraphposError
+
+
+@dataclass(frozen=True)
+class FileSource:
+    """A drive in an MCAP file."""
+
+    path: str
+
+    def load(self) -> Drive:
+        from graphpos.io import read_drive
+
+        return read_drive(self.path)
+
+    def describe(self) -> dict[str, Any]:
+        return {"file": self.path}
+
+
+@dataclass(frozen=True)
+class SimSource:
+    """A simulated drive: the arguments of :func:`graphpos.sim.simulate`.
+
+    ``overrides`` is a tuple of (key, value) pairs so that the source hashes.
+    """
+
+    scenario: str
+    pattern: str | None = None
+    seed: int = 0
+    duration_s: float | None = None
+    overrides: tuple[tuple[str, Any], ...] = ()
+    rfid_latency_s: tuple[float, float] | None = None
+
+    def load(self) -> Drive:
+        from graphpos.sim import simulate
+
+        return simulate(
+            self.scenario,
+            pattern=self.pattern,
+            seed=self.seed,
+            duration_s=self.duration_s,
+            overrides=dict(self.overrides) or None,
+            rfid_latency_s=self.rfid_latency_s,
+        )
+
+    def describe(self) -> dict[str, Any]:
+        return {k: (dict(v) if k == "overrides" else v) for k, v in dataclasses.asdict(self).items()}
+
+
+@functools.lru_cache(maxsize=4)
+def _load_cached(source: FileSource | SimSource) -> Drive:
+    return source.load()
+
+
+def load_drive(source: FileSource | SimSource | Drive) -> Drive:
+    """The drive of a source (a :class:`Drive` is its own source)."""
+    return source if isinstance(source, Drive) else _load_cached(source)
+
+
+@dataclass(frozen=True)
+class Job:
+    """One estimator on one drive.
+
+    Parameters
+    ----------
+    source : FileSource, SimSource or Drive
+    estimator : str
+        Registry name.
+    layout : str, optional
+        Tag layout the estimator hears.
+    range_model : str, RangeModel or None
+        A saved model's path, a model, or None for the drive's default.
+    keep_estimate : bool
+        Send the estimate back (for plots and exports).
+    tag : dict
+        The caller's labels (experiment, pattern, seed ...), returned as given.
+    """
+
+    source: Any
+    estimator: str
+    layout: str | None = None
+    range_model: Any = None
+    keep_estimate: bool = False
+    tag: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class JobResult:
+    """What a job gives back: figures or an error."""
+
+    job: Job
+    drive_name: str | None = None
+    drive_params: dict[str, Any] = field(default_factory=dict)
+    metrics: dict[str, Any] | None = None
+    config: dict[str, Any] | None = None
+    estimate: Any = None
+    error: str | None = None
+    traceback: str | None = None
+
+    @property
+    def ok(self) -> bool:
+        return self.error is None
+
+
+def _range_model(spec: Any) -> Any:
+    if spec is None or not isinstance(spec, str):
+        return spec
+    from graphpos.ranging import load_range_model
+
+    return load_range_model(spec)
+
+
+def _config_dict(config: Any) -> dict[str, Any]:
+    if dataclasses.is_dataclass(config):
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
+    return {"repr": repr(config)}
+
+
+def run_job(job: Job) -> JobResult:
+    """Build the drive and the estimator, run, score; never raises."""
+    from eval.metrics import evaluate_estimate
+    from graphpos.registry import make_estimator
+
+    result = JobResult(job)
+    try:
+        drive = load_drive(job.source)
+        result.drive_name = drive.name
+        result.drive_params = dict(drive.params)
+        est = make_estimator(job.estimator, layout=job.layout, range_model=_range_model(job.range_model))
+        result.config = _config_dict(est.config)
+        t0 = time.perf_counter()
+        estimate = est.run(drive)
+        if estimate.wall_time_s != estimate.wall_time_s:  # NaN: the estimator did not time itself
+            estimate = dataclasses.replace(estimate, wall_time_s=time.perf_counter() - t0)
+        result.metrics = evaluate_estimate(drive, estimate)
+        result.metrics["diagnostics"] = estimate.diagnostics
+        if job.keep_estimate:
+            result.estimate = estimate
+    except GraphposError as exc:
+        result.error = f"{type(exc).__name__}: {exc}"
+    except Exception as exc:  # a bug in an estimator must not sink the sweep; it is reported
+        result.error = f"{type(exc).__name__}: {exc}"
+        result.traceback = traceback.format_exc()
+    return result
+
+
+@contextmanager
+def executor(workers: int | None = None, scheduler: str | None = None) -> Iterator[Executor]:
+    """A process pool (``workers`` processes, default: all cores) or a Dask cluster's executor."""
+    if scheduler:
+        try:
+            from distributed import Client
+        except ImportError:  # pragma: no cover - dask is a dependency
+            raise ConfigError("--scheduler needs the 'distributed' package") from None
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            raise ConfigError(f"cannot reach the Dask scheduler at {scheduler} ({exc})") from None
+        try:
+            yield client.get_executor()
+        finally:
+            client.close()
+        return
+    if workers is not None and workers < 1:
+        raise ConfigError(f"--workers must be at least 1, got {workers}")
+    with ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
+        yield pool
+
+
+def execute(jobs: list[Job], workers: int | None = None, scheduler: str | None = None,
+            progress: bool = True, desc: str = "runs") -> list[JobResult]:
+    """Run every job; results in the order of ``jobs``."""
+    if not jobs:
+        return []
+    results: list[JobResult | None] = [None] * len(jobs)
+    with executor(workers, scheduler) as pool:
+        futures = {pool.submit(run_job, job): i for i, job in enumerate(jobs)}
+        bar = tqdm(total=len(jobs), desc=desc, unit="run", disable=not progress, leave=False)
+        for fut in as_completed(futures):
+            i = futures[fut]
+            try:
+                results[i] = fut.result()
+            except Exception as exc:  # the worker itself died (killed, out of memory, unpicklable)
+                results[i] = JobResult(jobs[i], error=f"worker failed: {type(exc).__name__}: {exc}")
+            bar.update(1)
+        bar.close()
+    return results  # type: ignore[return-value]
+
+
+def provenance() -> dict[str, Any]:
+    """Versions of the packages that made the figures, the host and the time."""
+    import importlib.metadata as md
+    import platform
+
+    versions = {}
+    for pkg in ("graphpos", "numpy", "scipy", "gtsam", "matplotlib", "dask", "distributed", "mcap"):
+        try:
+            versions[pkg] = md.version(pkg)
+        except md.PackageNotFoundError:
+            versions[pkg] = None
+    return {
+        "python": platform.python_version(),
+        "platform": platform.platform(),
+        "packages": versions,
+        "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    }
+
+
+def failures(results: list[JobResult]) -> list[JobResult]:
+    """The failed results."""
+    return [r for r in results if not r.ok]
+
+
+def describe_source(source: Any) -> dict[str, Any]:
+    """JSON description of a job's drive source."""
+    if isinstance(source, Drive):
+        return {"drive": source.name}
+    return source.describe()

@@ -1,0 +1,164 @@
+"""PNG figures of the reports (matplotlib, Agg back-end: no display needed)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from eval.metrics import error_series, wheel_speed_error  # noqa: E402
+from graphpos.drive import Drive  # noqa: E402
+from graphpos.estimate import Estimate  # noqa: E402
+
+_DPI = 110
+
+
+def _save(fig, path: Path) -> Path:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=_DPI, bbox_inches="tight")
+    plt.close(fig)
+    tmp.replace(path)
+    return path
+
+
+def _colors(names: list[str]) -> dict[str, tuple]:
+    cmap = plt.get_cmap("tab10")
+    return {n: cmap(i % 10) for i, n in enumerate(names)}
+
+
+def _walls(drive: Drive) -> list[np.ndarray]:
+    """Wall polylines: the tags of each wall side, ordered along the truth path."""
+    if not drive.has("truth") or not len(drive.tags):
+        return []
+    path = np.column_stack([drive.truth.east_m, drive.truth.north_m])
+    seg = np.r_[0.0, np.cumsum(np.hypot(*np.diff(path, axis=0).T))]
+    walls = []
+    for side in (1, -1):
+        sel = drive.tags.wall_side == side
+        if sel.sum() < 2:
+            continue
+        pts = np.column_stack([drive.tags.east_m[sel], drive.tags.north_m[sel]])
+        nearest = np.argmin(((pts[:, None, :] - path[None, ::10, :]) ** 2).sum(-1), axis=1)
+        walls.append(pts[np.argsort(seg[::10][nearest], kind="stable")])
+    return walls
+
+
+def trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: str | None = None) -> Path:
+    """Truth and estimates over the tunnel walls and tags (the heard layout filled)."""
+    fig, ax = plt.subplots(figsize=(10, 5))
+    for i, wall in enumerate(_walls(drive)):
+        ax.plot(wall[:, 0], wall[:, 1], color="0.6", lw=2.5, alpha=0.5, label="tunnel walls" if i == 0 else None)
+    if len(drive.tags):
+        heard = np.isin(drive.tags.tag_id, drive.tags.layout(layout)) if layout else np.ones(len(drive.tags), bool)
+        ax.scatter(drive.tags.east_m[heard], drive.tags.north_m[heard], marker="s", s=14, color="k", label="tags", zorder=3)
+        if (~heard).any():
+            ax.scatter(drive.tags.east_m[~heard], drive.tags.north_m[~heard], marker="s", s=14,
+                       facecolors="none", edgecolors="0.5", label="tags not used", zorder=3)
+    if len(drive.rsus):
+        ax.scatter(drive.rsus.east_m, drive.rsus.north_m, marker="^", s=40, color="tab:purple", label="RSUs", zorder=3)
+    if drive.has("truth"):
+        ax.plot(drive.truth.east_m, drive.truth.north_m, color="k", lw=1.2, ls="--", label="truth")
+    colors = _colors([e.name for e in estimates])
+    for est in estimates:
+        ax.plot(est.east_m, est.north_m, lw=1.0, color=colors[est.name], label=est.name)
+    ax.set_xlabel("east [m]")
+    ax.set_ylabel("north [m]")
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.legend(fontsize=8, loc="best")
+    ax.set_title(f"{drive.name}: trajectories")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def _shade_windows(ax, drive: Drive) -> None:
+    cmap = plt.get_cmap("Pastel1")
+    labels = sorted({w.label for w in drive.windows})
+    for w in drive.windows:
+        i = labels.index(w.label)
+        ax.axvspan(w.start_s, w.end_s, color=cmap(i % 9), alpha=0.45, lw=0,
+                   label=w.label if w is drive.window(w.label)[0] else None)
+
+
+def error_vs_time(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
+    """Euclidean position error against time, labelled windows shaded."""
+    fig, ax = plt.subplots(figsize=(10, 4))
+    _shade_windows(ax, drive)
+    colors = _colors([e.name for e in estimates])
+    for est in estimates:
+        s = error_series(drive, est)
+        ax.plot(s["t_s"], s["error_m"], lw=1.0, color=colors[est.name], label=est.name)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("position error [m]")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=8, ncol=2)
+    ax.set_title(f"{drive.name}: position error")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def error_cdf(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
+    """Empirical CDF of the Euclidean position error."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    colors = _colors([e.name for e in estimates])
+    for est in estimates:
+        err = np.sort(error_series(drive, est)["error_m"])
+        err = err[np.isfinite(err)]
+        if err.size:
+            ax.step(err, np.arange(1, err.size + 1) / err.size, where="post", color=colors[est.name], label=est.name)
+    ax.set_xlabel("position error [m]")
+    ax.set_ylabel("fraction of epochs")
+    ax.set_ylim(0, 1)
+    ax.legend(fontsize=8)
+    ax.set_title(f"{drive.name}: error CDF")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def speed_error(drive: Drive, estimates: list[Estimate], path: Path) -> Path | None:
+    """Speed error of the estimators that give a velocity, beside the raw wheel speed (song2016 Fig. 16)."""
+    with_velocity = [e for e in estimates if e.has_velocity]
+    wheel_t, wheel_err = wheel_speed_error(drive)
+    if not with_velocity and not wheel_err.size:
+        return None
+    fig, ax = plt.subplots(figsize=(10, 4))
+    if wheel_err.size:
+        ax.plot(wheel_t, wheel_err, color="0.6", lw=0.6, label="raw wheel speed")
+    colors = _colors([e.name for e in estimates])
+    for est in with_velocity:
+        s = error_series(drive, est)
+        ax.plot(s["t_s"], s["speed_error_mps"], lw=1.0, color=colors[est.name], label=est.name)
+    ax.set_xlabel("time [s]")
+    ax.set_ylabel("speed error [m/s]")
+    ax.legend(fontsize=8, ncol=2)
+    ax.set_title(f"{drive.name}: speed error against truth")
+    ax.grid(alpha=0.3)
+    return _save(fig, path)
+
+
+def cost_accuracy(points: dict[str, list[tuple[float, float, float]]], path: Path, title: str) -> Path:
+    """RMS error (with spread bars) against number of tags, one line per estimator.
+
+    ``points``: estimator -> [(n_tags, mean RMS, STD of RMS over seeds)].
+    """
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    colors = _colors(list(points))
+    for name, pts in points.items():
+        pts = sorted(p for p in pts if np.isfinite(p[1]))
+        if not pts:
+            continue
+        n, m, s = (np.array(v) for v in zip(*pts))
+        ax.errorbar(n, m, yerr=s, marker="o", capsize=3, color=colors[name], label=name)
+    ax.set_xlabel("number of tags")
+    ax.set_ylabel("RMS position error in tunnel [m]")
+    ax.set_ylim(bottom=0)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title)
+    return _save(fig, path)
+

@@ -1,0 +1,261 @@
+"""Plumbing shared by the papers' filters: dispatch, multi-rate timing, outputs, ranges.
+
+A :class:`FilterEstimator` subclass implements a few handlers
+(``_predict_to``, ``_on_imu``, ``_on_wheel``, ``_on_compass``, ``_on_scan``,
+``_output``) and gets, from this base:
+
+* asynchronous multi-rate processing: each measurement is applied at its own
+  time ``t_s`` after predicting the filter to it; a reading that arrives late
+  (``arrival_s > t_s``) is applied when it arrives, at the filter's current
+  time, because a filter cannot go back (the factor graph can);
+* RFID scans: the readings of one scan (same ``t_s`` and ``arrival_s``) are
+  grouped and applied together, as one observation vector (song2016 eq. 10);
+  their distances and 1-sigmas come from the estimator's
+  :class:`~graphpos.ranging.RangeModel` (``graphpos.ranging.default_range_model``
+  of the drive when none is given);
+* output epochs on a fixed grid (``output_rate_hz``; the filter is predicted to
+  each epoch) or, for RFID-only estimators, one output per scan;
+* ``run``: the ``start / process / finish`` loop over a drive, done over
+  pre-extracted arrays (the same handlers in the same order as
+  ``Estimator.run`` would call them; the tests check both agree).
+
+The initial pose comes from the drive's ``truth`` (else ``gnss``) at the
+first measurement: the papers start every filter from the DGPS position
+before the tunnel.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import Any, ClassVar
+
+import numpy as np
+
+from graphpos.drive import Drive, Measurement
+from graphpos.errors import MissingChannelError
+from graphpos.estimate import Estimate, OutputRow
+from graphpos.estimator import Estimator, _with_wall_time
+
+
+class InitialPose:
+    """Position, velocity and yaw at the start of a drive, from truth or GNSS.
+
+    Attributes
+    ----------
+    t_s, east_m, north_m, v_east_mps, v_north_mps, yaw_rad : float
+    from_truth : bool
+        False when taken from GNSS (velocity and yaw are then unknown: 0).
+    """
+
+    def __init__(self, drive: Drive, t_s: float):
+        if drive.has("truth"):
+            tr = drive.truth
+            i = int(np.clip(np.searchsorted(tr.t_s, t_s), 0, len(tr) - 1))
+            self.t_s = float(t_s)
+            self.east_m, self.north_m = float(tr.east_m[i]), float(tr.north_m[i])
+            self.v_east_mps, self.v_north_mps = float(tr.v_east_mps[i]), float(tr.v_north_mps[i])
+            self.yaw_rad = float(tr.yaw_rad[i])
+            self.from_truth = True
+        elif drive.has("gnss"):
+            g = drive.gnss
+            i = int(np.clip(np.searchsorted(g.t_s, t_s), 0, len(g) - 1))
+            self.t_s = float(t_s)
+            self.east_m, self.north_m = float(g.east_m[i]), float(g.north_m[i])
+            self.v_east_mps = self.v_north_mps = self.yaw_rad = 0.0
+            self.from_truth = False
+        else:
+            raise MissingChannelError(
+                f"drive '{drive.name}' has neither a truth nor a gnss channel to take the initial pose from"
+            )
+
+
+class FilterEstimator(Estimator):
+    """Base of the song2016 filters (see the module docstring).
+
+    Subclasses set ``output_on_scan`` (True: one output per RFID scan instead
+    of the ``config.output_rate_hz`` grid) and implement the handlers.
+    """
+
+    output_on_scan: ClassVar[bool] = False
+
+    # -- handlers (subclasses) ------------------------------------------------
+    def _init_filter(self, drive: Drive, t0_s: float) -> None:
+        """Set up the filter state at the drive's first measurement time."""
+
+    def _predict_to(self, t_s: float) -> None:
+        """Advance the filter to ``t_s`` (never backwards)."""
+
+    def _on_imu(self, t_s: float, accel_x: float, accel_y: float, yaw_rate: float) -> None:
+        pass
+
+    def _on_wheel(self, t_s: float, speed_mps: float) -> None:
+        pass
+
+    def _on_compass(self, t_s: float, yaw_rad: float) -> None:
+        pass
+
+    def _on_scan(self, t_s: float, tags_en_m: np.ndarray, ranges_m: np.ndarray, sigmas_m: np.ndarray) -> None:
+        pass
+
+    def _output(self, t_s: float) -> OutputRow | None:
+        """The output row at ``t_s`` (the filter has been predicted to it)."""
+        raise NotImplementedError
+
+    # -- contract ---------------------------------------------------------------
+    def start(self, drive: Drive) -> None:
+        from graphpos.ranging import default_range_model
+
+        self._range_model = self.range_model or default_range_model(drive)
+        self._tag_index = {int(t): i for i, t in enumerate(drive.tags.tag_id)}
+        self._tag_en = np.column_stack([drive.tags.east_m, drive.tags.north_m])
+        self._allowed = set(int(t) for t in drive.tags.layout(self.layout)) if self.layout else None
+        self._rows: list[OutputRow] = []
+        self._pending: list[dict[str, float]] = []
+        self.diagnostics: dict[str, Any] = {"scans": 0, "ranges_used": 0, "ranges_gated": 0, "ranges_unusable": 0, "late_scans": 0}
+        t0 = self._first_time(drive)
+        self._t = t0
+        period = 1.0 / float(getattr(self.config, "output_rate_hz", 10.0))
+        self._period = period
+        self._next_out = math.ceil(t0 / period - 1e-9) * period
+        self._n_out = 0
+        self._t_grid0 = self._next_out
+        self._init_filter(drive, t0)
+
+    def _first_time(self, drive: Drive) -> float:
+        starts = [float(drive.channels[c].t_s[0]) for c in self.channels_used(drive)]
+        return min(starts) if starts else drive.start_s
+
+    def process(self, measurement: Measurement) -> list[OutputRow]:
+        n0 = len(self._rows)
+        m = measurement
+        if self._pending and (m.channel != "rfid" or (m.t_s, m.arrival_s) != self._pending_key):
+            self._flush_scan()
+        if m.channel == "rfid":
+            if not self._pending:
+                self._pending_key = (m.t_s, m.arrival_s)
+            self._pending.append(m.values)
+        else:
+            v = m.values
+            t = self._advance(m.t_s)
+            if m.channel == "imu":
+                self._on_imu(t, v["accel_x_mps2"], v["accel_y_mps2"], v["yaw_rate_radps"])
+            elif m.channel == "wheel":
+                self._on_wheel(t, v["speed_mps"])
+            elif m.channel == "compass":
+                self._on_compass(t, v["yaw_rad"])
+        return self._rows[n0:]
+
+    def finish(self) -> Estimate:
+        if self._pending:
+            self._flush_scan()
+        return Estimate.from_rows(
+            self.name,
+            self._rows,
+            rate_hz=float("nan") if self.output_on_scan else 1.0 / self._period,
+            diagnostics=dict(self.diagnostics),
+        )
+
+    # -- timing -----------------------------------------------------------------
+    def _advance(self, t_s: float) -> float:
+        """Emit grid outputs up to ``t_s``, predict to it; returns the time used."""
+        t = t_s if t_s > self._t else self._t
+        if not self.output_on_scan:
+            while self._next_out <= t:
+                te = self._next_out
+                self._predict_to(te)
+                self._t = te
+                row = self._output(te)
+                if row is not None:
+                    self._rows.append(row)
+                self._n_out += 1
+                self._next_out = self._t_grid0 + self._n_out * self._period
+        self._predict_to(t)
+        self._t = t
+        return t
+
+    # -- RFID scans -------------------------------------------------------------
+    def _flush_scan(self) -> None:
+        rows, self._pending = self._pending, []
+        t_s, arrival_s = self._pending_key
+        ids = [int(r["tag_id"]) for r in rows]
+        col = self._range_model.input_column
+        reading = np.array([r[col] for r in rows], dtype=np.float64)
+        d = self._range_model.predict_distance_m(reading)
+        self._scan(t_s, arrival_s, ids, d, self._range_model.predict_sigma_m(d))
+
+    def _scan(self, t_s: float, arrival_s: float, ids: list[int], d: np.ndarray, sigma: np.ndarray) -> None:
+        keep = np.isfinite(d) & np.isfinite(sigma) & (sigma > 0)
+        if self._allowed is not None:
+            keep &= np.array([i in self._allowed for i in ids], dtype=bool)
+        self.diagnostics["ranges_unusable"] += int((~keep).sum())
+        if arrival_s > t_s or t_s < self._t:
+            self.diagnostics["late_scans"] += 1
+        t = self._advance(t_s)
+        if not keep.any():
+            return
+        self.diagnostics["scans"] += 1
+        idx = [self._tag_index[i] for i, k in zip(ids, keep) if k]
+        self._on_scan(t, self._tag_en[idx], d[keep], sigma[keep])
+
+    # -- fast offline loop ----------------------------------------------------
+    def run(self, drive: Drive) -> Estimate:
+        """Same as ``Estimator.run`` (start / process each / finish), over arrays."""
+        drive = self.prepare(drive)
+        t0 = time.perf_counter()
+        self.start(drive)
+        names = self.channels_used(drive)
+        keys, codes, rows = [], [], []
+        for code, name in enumerate(names):
+            ch = drive.channels[name]
+            keys.append(ch["arrival_s"] if "arrival_s" in ch.columns else ch.t_s)
+            codes.append(np.full(len(ch), code, dtype=np.int64))
+            rows.append(np.arange(len(ch)))
+        key, code, row = np.concatenate(keys), np.concatenate(codes), np.concatenate(rows)
+        order = np.lexsort((row, code, key))
+        code, row = code[order].tolist(), row[order].tolist()
+        cols: list[Any] = []
+        for name in names:
+            ch = drive.channels[name]
+            if name == "imu":
+                cols.append((ch.t_s.tolist(), ch.accel_x_mps2.tolist(), ch.accel_y_mps2.tolist(), ch.yaw_rate_radps.tolist()))
+            elif name == "wheel":
+                cols.append((ch.t_s.tolist(), ch.speed_mps.tolist()))
+            elif name == "compass":
+                cols.append((ch.t_s.tolist(), ch.yaw_rad.tolist()))
+            elif name == "rfid":
+                d, s = self._range_model.ranges(ch)
+                cols.append((ch.t_s.tolist(), ch.arrival_s.tolist(), ch.tag_id.astype(np.int64).tolist(), d, s))
+            else:
+                cols.append(None)
+        kinds = [n for n in names]
+        n_events = len(code)
+        i = 0
+        while i < n_events:
+            c, r = code[i], row[i]
+            kind = kinds[c]
+            if kind == "imu":
+                ts, ax, ay, wz = cols[c]
+                t = self._advance(ts[r])
+                self._on_imu(t, ax[r], ay[r], wz[r])
+            elif kind == "wheel":
+                ts, v = cols[c]
+                t = self._advance(ts[r])
+                self._on_wheel(t, v[r])
+            elif kind == "compass":
+                ts, y = cols[c]
+                t = self._advance(ts[r])
+                self._on_compass(t, y[r])
+            elif kind == "rfid":
+                ts, arr, ids, d, s = cols[c]
+                j = i + 1
+                key_r = (ts[r], arr[r])
+                while j < n_events and code[j] == c and (ts[row[j]], arr[row[j]]) == key_r:
+                    j += 1
+                rr = row[i:j]
+                self._scan(ts[r], arr[r], [ids[k] for k in rr], d[rr], s[rr])
+                i = j
+                continue
+            i += 1
+        est = self.finish()
+        return _with_wall_time(est, time.perf_counter() - t0)

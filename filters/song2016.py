@@ -1,0 +1,577 @@
+"""The estimators of song2016 (J. Navigation) and song2016b (Engineering Letters).
+
+=================  ======================================================  ==========
+name               what                                                    output
+=================  ======================================================  ==========
+``dr``             in-vehicle sensors only: eq. 16 model, wheel + compass  10 Hz
+``multilateration`` eq. 38 (misprint corrected), linearised least squares  per scan
+``rfid-ekf``       eq. 10-15: position random walk, range updates          per scan
+``fusion-ekf``     eq. 16-17: 5-state EKF, ranges + wheel + compass        10 Hz
+``fukf``           §5: two local UKFs, federated fusion eq. 34-37          10 Hz
+``two-level-ekf``  song2016b: RFID-EKF fixes -> 5-state EKF (eq. 16-17)    10 Hz
+=================  ======================================================  ==========
+
+Fallbacks for optional channels (documented here once):
+
+* no accelerometers (an IMU with a yaw gyro only, the Plaza data): eq. 16
+  cannot be driven, so the prediction is
+  :func:`filters.models.vehicle.rotating_velocity_motion` (velocity turned by
+  the measured yaw rate) with ``no_accel_psd_m2ps3`` of process noise; the
+  wheel speed then carries the speed;
+* no compass: no yaw update (yaw from the gyro integration and, through the
+  velocity, from the wheel speed and ranges).
+
+The papers give no noise values for the filters beyond the IMU's (§6: 0.1
+m/s^2, 0.2 deg/s); every other default below is ours, chosen on simulated
+drives of the papers' specification and stated in the config docstrings.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from filters.base import FilterEstimator, InitialPose
+from filters.core import ekf
+from filters.core.federated import fuse, share_information
+from filters.core.ukf import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filters.models import measurements as meas
+from filters.models import vehicle
+from filters.models.angles import angle_residual, wrap_angle
+from graphpos.drive import Drive
+from graphpos.estimate import OutputRow
+
+_DEG = math.pi / 180.0
+
+
+# ---------------------------------------------------------------------------
+# Configs
+# ---------------------------------------------------------------------------
+
+
+@dataclass
+class VehicleFilterConfig:
+    """Tunables of the 5-state filters (fusion-ekf, dr, two-level-ekf, fukf).
+
+    Attributes
+    ----------
+    output_rate_hz : float
+        Output grid (song2016: 10 Hz).
+    accel_sigma_mps2, yaw_rate_sigma_radps : float
+        1-sigma of one IMU sample (song2016 §6: 0.1 m/s^2, 0.2 deg/s).
+    imu_rate_hz : float
+        IMU sample rate (§6: 100 Hz); with the sample sigma it gives the
+        white-noise density of the process noise, ``sigma^2 / rate``.
+    accel_model_psd_m2ps3 : float
+        Extra acceleration noise density for what eq. 16 leaves out
+        (accelerometer bias, road grade, body roll). Ours.
+    no_accel_psd_m2ps3 : float
+        Acceleration noise density of the no-accelerometer fallback. Ours.
+    wheel_sigma_mps, compass_sigma_rad : float
+        Measurement 1-sigmas (the paper gives none; ours).
+    init_position_sigma_m, init_speed_sigma_mps, init_yaw_sigma_rad : float
+        Initial 1-sigmas around the starting pose (DGPS before the tunnel).
+    range_gate_probability : float
+        Chi-square gate on each range innovation (one degree of freedom);
+        1.0 turns gating off (the papers have none).
+    """
+
+    output_rate_hz: float = 10.0
+    accel_sigma_mps2: float = 0.1
+    yaw_rate_sigma_radps: float = 0.2 * _DEG
+    imu_rate_hz: float = 100.0
+    accel_model_psd_m2ps3: float = 0.01
+    no_accel_psd_m2ps3: float = 0.5
+    wheel_sigma_mps: float = 0.1
+    compass_sigma_rad: float = 2.0 * _DEG
+    init_position_sigma_m: float = 0.5
+    init_speed_sigma_mps: float = 0.3
+    init_yaw_sigma_rad: float = 3.0 * _DEG
+    range_gate_probability: float = 0.999
+
+
+@dataclass
+class RfidEkfConfig:
+    """Tunables of the RFID-EKF (song2016 eq. 10-15).
+
+    Attributes
+    ----------
+    speed_sigma_mps : float
+        Random-walk process noise: the position may move by this speed times
+        the step (1-sigma per axis). Q_RFID is not given in the paper; ours,
+        about the test speed.
+    init_position_sigma_m : float
+    range_gate_probability : float
+        As in :class:`VehicleFilterConfig`.
+    """
+
+    speed_sigma_mps: float = 3.0
+    init_position_sigma_m: float = 0.5
+    range_gate_probability: float = 0.999
+
+
+@dataclass
+class MultilaterationConfig:
+    """Tunables of multilateration (song2016 eq. 38).
+
+    Attributes
+    ----------
+    min_tags : int
+        Tags needed for a fix (eq. 38 needs three).
+    """
+
+    min_tags: int = 3
+
+
+@dataclass
+class FukfConfig(VehicleFilterConfig):
+    """Tunables of the federated UKF (song2016 §5).
+
+    Attributes
+    ----------
+    beta_few_tags, beta_many_tags : (float, float)
+        Information-sharing coefficients (beta_1 ranges, beta_2 wheel/compass)
+        when fewer than ``many_tags`` tags are measured, and otherwise
+        (§5.4: 0.05/0.95 and 0.8/0.2; beta_m = 0).
+    many_tags : int
+        §5.4: four.
+    ukf_alpha, ukf_beta, ukf_kappa : float
+        Scaled unscented transform parameters (the paper prints none; alpha
+        0.5 keeps the sigma points within the tags' range, beta 2 is optimal
+        for Gaussians).
+    """
+
+    beta_few_tags: tuple[float, float] = (0.05, 0.95)
+    beta_many_tags: tuple[float, float] = (0.8, 0.2)
+    many_tags: int = 4
+    ukf_alpha: float = 0.5
+    ukf_beta: float = 2.0
+    ukf_kappa: float = 0.0
+
+
+@dataclass
+class TwoLevelEkfConfig(VehicleFilterConfig):
+    """Tunables of the two-level EKF (song2016b).
+
+    Attributes
+    ----------
+    level1 : RfidEkfConfig
+        The first-level RFID-EKF.
+    fix_covariance_scale : float
+        The level-2 EKF takes each level-1 position with the level-1
+        covariance times this factor as R (song2016b gives no R). Above 1
+        because consecutive level-1 positions share their errors (the level
+        is itself a filter); ours.
+    """
+
+    level1: RfidEkfConfig = field(default_factory=RfidEkfConfig)
+    fix_covariance_scale: float = 4.0
+
+
+# ---------------------------------------------------------------------------
+# Shared 5-state machinery
+# ---------------------------------------------------------------------------
+
+
+def _process_noise(cfg: VehicleFilterConfig, dt: float, accel_psd: float) -> np.ndarray:
+    """Discrete white-noise-acceleration Q of the 5-state model over ``dt``.
+
+    Per axis ``q [[dt^3/3, dt^2/2], [dt^2/2, dt]]`` with ``q`` the
+    acceleration density (isotropic, so independent of yaw); yaw
+    ``q_w dt``.
+    """
+    q_w = cfg.yaw_rate_sigma_radps**2 / cfg.imu_rate_hz
+    Q = np.zeros((5, 5))
+    Q[0, 0] = Q[1, 1] = accel_psd * dt**3 / 3.0
+    Q[0, 2] = Q[2, 0] = Q[1, 3] = Q[3, 1] = accel_psd * dt**2 / 2.0
+    Q[2, 2] = Q[3, 3] = accel_psd * dt
+    Q[4, 4] = q_w * dt
+    return Q
+
+
+class _InputHold:
+    """The IMU input held between samples (zero-order hold) and the model it drives."""
+
+    def __init__(self, cfg: VehicleFilterConfig):
+        self.cfg = cfg
+        self.u = np.zeros(3)
+        self.has_accel = True
+        self._q_cache: dict[tuple[float, bool], np.ndarray] = {}
+
+    def set(self, accel_x: float, accel_y: float, yaw_rate: float) -> None:
+        self.has_accel = accel_x == accel_x and accel_y == accel_y  # not NaN
+        self.u = np.array([accel_x, accel_y, yaw_rate]) if self.has_accel else np.array([0.0, 0.0, yaw_rate])
+
+    def psd(self) -> float:
+        cfg = self.cfg
+        if self.has_accel:
+            return cfg.accel_sigma_mps2**2 / cfg.imu_rate_hz + cfg.accel_model_psd_m2ps3
+        return cfg.no_accel_psd_m2ps3
+
+    def Q(self, dt: float) -> np.ndarray:
+        key = (round(dt, 12), self.has_accel)
+        Q = self._q_cache.get(key)
+        if Q is None:
+            Q = _process_noise(self.cfg, dt, self.psd())
+            if len(self._q_cache) < 256:
+                self._q_cache[key] = Q
+        return Q
+
+    def propagate(self, x: np.ndarray, dt: float, jacobian: bool):
+        """``(x_next, F)``: eq. 16, or the fallback without accelerometers."""
+        if self.has_accel:
+            out, jac = vehicle.improved_motion(x, self.u, dt, jacobian)
+            return out, (jac[0] if jac is not None else None)
+        return vehicle.rotating_velocity_motion(x, float(self.u[2]), dt, jacobian)
+
+
+def _initial_covariance(cfg: VehicleFilterConfig) -> np.ndarray:
+    return np.diag(
+        [
+            cfg.init_position_sigma_m**2,
+            cfg.init_position_sigma_m**2,
+            cfg.init_speed_sigma_mps**2,
+            cfg.init_speed_sigma_mps**2,
+            cfg.init_yaw_sigma_rad**2,
+        ]
+    )
+
+
+def _initial_state(drive: Drive, t0: float) -> np.ndarray:
+    pose = InitialPose(drive, t0)
+    return np.array([pose.east_m, pose.north_m, pose.v_east_mps, pose.v_north_mps, wrap_angle(pose.yaw_rad)])
+
+
+def _gated_range_rows(x, P, tags, ranges, sigmas, probability):
+    """Predicted ranges, Jacobian and the rows passing the chi-square gate."""
+    r_pred, H = meas.tag_range(x, tags)
+    S = np.einsum("ij,jk,ik->i", H, P, H) + sigmas * sigmas
+    return r_pred, H, ekf.gate_scalar_rows(ranges - r_pred, S, probability)
+
+
+class _VehicleEkf(FilterEstimator):
+    """The 5-state EKF of song2016 eq. 16-17 (state ``[p_e, p_n, v_e, v_n, psi]``)."""
+
+    config: VehicleFilterConfig
+
+    @classmethod
+    def default_config(cls) -> VehicleFilterConfig:
+        return VehicleFilterConfig()
+
+    def _init_filter(self, drive: Drive, t0_s: float) -> None:
+        self._x = _initial_state(drive, t0_s)
+        self._P = _initial_covariance(self.config)
+        self._hold = _InputHold(self.config)
+        self._R_wheel = np.array([[self.config.wheel_sigma_mps**2]])
+        self._R_compass = np.array([[self.config.compass_sigma_rad**2]])
+
+    def _predict_to(self, t_s: float) -> None:
+        dt = t_s - self._t
+        if dt <= 0.0:
+            return
+        x, F = self._hold.propagate(self._x, dt, True)
+        x[4] = wrap_angle(float(x[4]))
+        self._x, self._P = ekf.predict(x, F, self._P, self._hold.Q(dt))
+
+    def _on_imu(self, t_s, accel_x, accel_y, yaw_rate):
+        self._hold.set(accel_x, accel_y, yaw_rate)
+
+    def _on_wheel(self, t_s, speed_mps):
+        v, H = meas.wheel_speed(self._x)
+        self._x, self._P, _ = ekf.update(self._x, self._P, np.array([speed_mps]), np.array([v]), H, self._R_wheel)
+
+    def _on_compass(self, t_s, yaw_rad):
+        yaw, H = meas.compass_yaw(self._x)
+        res = ekf.update(self._x, self._P, np.array([yaw_rad]), np.array([yaw]), H, self._R_compass, residual=angle_residual)
+        res.x[4] = wrap_angle(float(res.x[4]))
+        self._x, self._P = res.x, res.P
+
+    def _range_update(self, tags, ranges, sigmas) -> int:
+        r_pred, H, ok = _gated_range_rows(self._x, self._P, tags, ranges, sigmas, self.config.range_gate_probability)
+        self.diagnostics["ranges_gated"] += int((~ok).sum())
+        if ok.any():
+            res = ekf.update(self._x, self._P, ranges[ok], r_pred[ok], H[ok], sigmas[ok] ** 2)
+            res.x[4] = wrap_angle(float(res.x[4]))
+            self._x, self._P = res.x, res.P
+            self.diagnostics["ranges_used"] += int(ok.sum())
+        return int(ok.sum())
+
+    def _output(self, t_s: float) -> OutputRow:
+        x = self._x
+        return OutputRow(t_s, float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), self._P[:2, :2].copy())
+
+
+# ---------------------------------------------------------------------------
+# The estimators
+# ---------------------------------------------------------------------------
+
+
+class FusionEkf(_VehicleEkf):
+    """song2016 Fusion-EKF (eq. 16-17): ranges, wheel speed and compass in one EKF.
+
+    The range rows of a scan are applied together (eq. 13-15) after the
+    chi-square gate drops inconsistent ones.
+    """
+
+    name = "fusion-ekf"
+    summary = "song2016 Fusion-EKF: 5-state EKF on ranges + wheel speed + compass, 10 Hz"
+    required_channels = ("imu", "wheel", "rfid")
+    optional_channels = ("compass",)
+
+    def _on_scan(self, t_s, tags, ranges, sigmas):
+        self._range_update(tags, ranges, sigmas)
+
+
+class DeadReckoning(_VehicleEkf):
+    """Dead reckoning (song2016 §6.3.2 DR): the eq. 16 model driven by the IMU,
+    corrected by the wheel speed and compass only — no position observation,
+    so the error grows without bound."""
+
+    name = "dr"
+    summary = "dead reckoning: eq. 16 model with wheel speed + compass, no RFID, 10 Hz"
+    required_channels = ("imu", "wheel")
+    optional_channels = ("compass",)
+
+
+class TwoLevelEkf(_VehicleEkf):
+    """song2016b: level 1 is the RFID-EKF; its positions (1 Hz) are position
+    fixes for the level-2 5-state EKF together with wheel speed and compass
+    (song2016b eq. 16-17), output at 10 Hz."""
+
+    name = "two-level-ekf"
+    summary = "song2016b two-level EKF: RFID-EKF positions + wheel + compass in a 5-state EKF, 10 Hz"
+    required_channels = ("imu", "wheel", "rfid")
+    optional_channels = ("compass",)
+    config: TwoLevelEkfConfig
+
+    @classmethod
+    def default_config(cls) -> TwoLevelEkfConfig:
+        return TwoLevelEkfConfig()
+
+    def _init_filter(self, drive, t0_s):
+        super()._init_filter(drive, t0_s)
+        self._level1 = _RfidEkfState(self.config.level1, self._x[:2], t0_s)
+
+    def _on_scan(self, t_s, tags, ranges, sigmas):
+        used, gated = self._level1.scan(t_s, tags, ranges, sigmas)
+        self.diagnostics["ranges_gated"] += gated
+        self.diagnostics["ranges_used"] += used
+        if not used:
+            return
+        z_pred, H = meas.position_fix(self._x)
+        R = self._level1.P * self.config.fix_covariance_scale
+        res = ekf.update(self._x, self._P, self._level1.x, z_pred, H, R)
+        res.x[4] = wrap_angle(float(res.x[4]))
+        self._x, self._P = res.x, res.P
+
+
+class _RfidEkfState:
+    """The RFID-EKF filter itself (song2016 eq. 10-15), shared by ``rfid-ekf``
+    and the first level of ``two-level-ekf``."""
+
+    def __init__(self, cfg: RfidEkfConfig, x0: np.ndarray, t0_s: float, sigma0_m: float | None = None):
+        self.cfg = cfg
+        self.x = np.array(x0[:2], dtype=np.float64)
+        s0 = cfg.init_position_sigma_m if sigma0_m is None else sigma0_m
+        self.P = np.eye(2) * s0**2
+        self.t = t0_s
+
+    def scan(self, t_s, tags, ranges, sigmas) -> tuple[int, int]:
+        """Predict (eq. 11-12) to ``t_s`` and update with the scan (eq. 13-15).
+
+        Returns (rows used, rows gated).
+        """
+        dt = max(t_s - self.t, 0.0)
+        self.t = max(self.t, t_s)
+        x, F = vehicle.random_walk(self.x, dt)
+        self.x, self.P = ekf.predict(x, F, self.P, vehicle.random_walk_noise(2, self.cfg.speed_sigma_mps, dt))
+        r_pred, H, ok = _gated_range_rows(self.x, self.P, tags, ranges, sigmas, self.cfg.range_gate_probability)
+        if ok.any():
+            self.x, self.P, _ = ekf.update(self.x, self.P, ranges[ok], r_pred[ok], H[ok], sigmas[ok] ** 2)
+        return int(ok.sum()), int((~ok).sum())
+
+
+class RfidEkf(FilterEstimator):
+    """song2016 RFID-EKF (eq. 10-15): position random walk, one range row per
+    detected tag, one output per RFID scan (1 Hz), no velocity.
+
+    Without a truth/GNSS starting pose the filter starts at the centroid of
+    the first scan's tags with a 10 m sigma.
+    """
+
+    name = "rfid-ekf"
+    summary = "song2016 RFID-EKF: 2-state EKF on tag ranges, output per scan (1 Hz), no velocity"
+    required_channels = ("rfid",)
+    output_on_scan = True
+    config: RfidEkfConfig
+
+    @classmethod
+    def default_config(cls) -> RfidEkfConfig:
+        return RfidEkfConfig()
+
+    def _init_filter(self, drive, t0_s):
+        try:
+            pose = InitialPose(drive, t0_s)
+            self._f = _RfidEkfState(self.config, np.array([pose.east_m, pose.north_m]), t0_s)
+        except Exception:  # no truth or GNSS: start at the first scan
+            self._f = None
+
+    def _on_scan(self, t_s, tags, ranges, sigmas):
+        if self._f is None:
+            self._f = _RfidEkfState(self.config, tags.mean(axis=0), t_s, sigma0_m=10.0)
+        used, gated = self._f.scan(t_s, tags, ranges, sigmas)
+        self.diagnostics["ranges_used"] += used
+        self.diagnostics["ranges_gated"] += gated
+        f = self._f
+        self._rows.append(OutputRow(t_s, float(f.x[0]), float(f.x[1]), cov_en_m2=f.P.copy()))
+
+
+class Multilateration(FilterEstimator):
+    """Multilateration, song2016 eq. 38, by linearised least squares.
+
+    Eq. 38 prints ``(x - x_i^2)^2``; the tag coordinates are not squared:
+    ``r_i^2 = (x - x_i)^2 + (y - y_i)^2``. Subtracting the mean of the
+    equations removes the quadratic terms and leaves the linear system
+    ``2 (x_i - x_bar) x + 2 (y_i - y_bar) y = (|t_i|^2 - mean|t|^2) - (r_i^2 - mean r^2)``,
+    solved by least squares at each scan with at least ``min_tags`` tags.
+    The covariance given is ``(H^T R^-1 H)^-1`` of the ranges at the fix.
+    """
+
+    name = "multilateration"
+    summary = "song2016 eq. 38 multilateration (linearised least squares), output per scan"
+    required_channels = ("rfid",)
+    output_on_scan = True
+    config: MultilaterationConfig
+
+    @classmethod
+    def default_config(cls) -> MultilaterationConfig:
+        return MultilaterationConfig()
+
+    def _on_scan(self, t_s, tags, ranges, sigmas):
+        if len(ranges) < max(self.config.min_tags, 3):
+            self.diagnostics["scans_too_few_tags"] = self.diagnostics.get("scans_too_few_tags", 0) + 1
+            return
+        fix = multilaterate(tags, ranges)
+        if fix is None:
+            self.diagnostics["scans_degenerate"] = self.diagnostics.get("scans_degenerate", 0) + 1
+            return
+        _, H = meas.tag_range(fix, tags)
+        info = H.T @ (H / (sigmas * sigmas)[:, None])
+        cov = np.linalg.pinv(info)
+        self.diagnostics["ranges_used"] += len(ranges)
+        self._rows.append(OutputRow(t_s, float(fix[0]), float(fix[1]), cov_en_m2=cov))
+
+
+def multilaterate(tags_en_m: np.ndarray, ranges_m: np.ndarray) -> np.ndarray | None:
+    """Linearised least-squares position from ranges (song2016 eq. 38, corrected).
+
+    Returns None when the tags are (nearly) collinear.
+    """
+    t = np.asarray(tags_en_m, dtype=np.float64)
+    r = np.asarray(ranges_m, dtype=np.float64)
+    A = 2.0 * (t - t.mean(axis=0))
+    sq = (t * t).sum(axis=1)
+    b = (sq - sq.mean()) - (r * r - (r * r).mean())
+    sv = np.linalg.svd(A, compute_uv=False)
+    if sv.size < 2 or sv[1] < 1e-6 * max(sv[0], 1e-12):
+        return None
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
+    return sol
+
+
+class Fukf(FilterEstimator):
+    """song2016 §5 federated UKF.
+
+    Two local UKFs on the eq. 16 model, both predicted with the IMU: local
+    filter 1 observes the ranges (eq. 19), local filter 2 the wheel speed and
+    compass (eq. 20). The master (beta_m = 0, no state of its own) fuses them
+    (eq. 36-37) at every output epoch and after every RFID scan, then resets
+    both to the fused state with ``P_j = P_g / beta_j``, ``Q_j = Q / beta_j``
+    (eq. 34-35). The beta rule of §5.4: fewer than ``many_tags`` tags used in
+    the scan -> ``beta_few_tags`` else ``beta_many_tags``; a fusion without a
+    scan counts zero tags.
+    """
+
+    name = "fukf"
+    summary = "song2016 federated UKF: range UKF + wheel/compass UKF, federated fusion, 10 Hz"
+    required_channels = ("imu", "wheel", "rfid")
+    optional_channels = ("compass",)
+    config: FukfConfig
+
+    @classmethod
+    def default_config(cls) -> FukfConfig:
+        return FukfConfig()
+
+    def _init_filter(self, drive, t0_s):
+        cfg = self.config
+        x0, P0 = _initial_state(drive, t0_s), _initial_covariance(cfg)
+        pts = MerweScaledSigmaPoints(5, cfg.ukf_alpha, cfg.ukf_beta, cfg.ukf_kappa)
+        self._hold = _InputHold(cfg)
+        self._local = [UnscentedKalmanFilter(x0, P0, pts, angle_states=(4,)) for _ in range(2)]
+        self._x, self._P = x0, P0
+        self._set_beta(cfg.beta_few_tags)
+        self._reset()
+        self._R_wheel = np.array([cfg.wheel_sigma_mps**2])
+        self._R_compass = np.array([cfg.compass_sigma_rad**2])
+        self.diagnostics["fusions"] = 0
+
+    def _set_beta(self, beta):
+        self._beta = tuple(float(b) for b in beta)
+
+    def _reset(self):
+        """Information sharing (eq. 34-35) and local reset to the fused state."""
+        shares = share_information(self._P, np.zeros((5, 5)), self._beta)
+        for f, (P_j, _) in zip(self._local, shares):
+            f.reset(self._x, P_j)
+
+    def _fuse(self):
+        self._x, self._P = fuse([(f.x, f.P) for f in self._local], angle_states=(4,))
+        self.diagnostics["fusions"] += 1
+
+    def _predict_to(self, t_s):
+        dt = t_s - self._t
+        if dt <= 0.0:
+            return
+        hold = self._hold
+        Q = hold.Q(dt)
+        fx = lambda S: hold.propagate(S, dt, False)[0]  # noqa: E731
+        for f, b in zip(self._local, self._beta):
+            f.predict(fx, Q / b)
+
+    def _on_imu(self, t_s, accel_x, accel_y, yaw_rate):
+        self._hold.set(accel_x, accel_y, yaw_rate)
+
+    def _on_wheel(self, t_s, speed_mps):
+        self._local[1].update(np.array([speed_mps]), lambda S: meas.wheel_speed(S, False)[0][:, None], self._R_wheel)
+
+    def _on_compass(self, t_s, yaw_rad):
+        self._local[1].update(
+            np.array([yaw_rad]), lambda S: meas.compass_yaw(S, False)[0][:, None], self._R_compass, angle_measurements=(0,)
+        )
+
+    def _on_scan(self, t_s, tags, ranges, sigmas):
+        _, ok = self._local[0].update(
+            ranges, lambda S: meas.tag_range(S, tags, False)[0], sigmas**2, gate_probability=self.config.range_gate_probability
+        )
+        n_used = int(ok.sum())
+        self.diagnostics["ranges_gated"] += int((~ok).sum())
+        self.diagnostics["ranges_used"] += n_used
+        self._fuse()
+        cfg = self.config
+        self._set_beta(cfg.beta_many_tags if n_used >= cfg.many_tags else cfg.beta_few_tags)
+        self._reset()
+
+    def _output(self, t_s):
+        self._fuse()
+        self._set_beta(self.config.beta_few_tags)
+        self._reset()
+        x = self._x
+        return OutputRow(t_s, float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), self._P[:2, :2].copy())
+
+
+#: song2016 / song2016b estimators by name.
+ESTIMATORS = {
+    cls.name: cls for cls in (DeadReckoning, Multilateration, RfidEkf, FusionEkf, Fukf, TwoLevelEkf)
+}

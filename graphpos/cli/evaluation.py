@@ -1,0 +1,111 @@
+"""Commands ``evaluate``, ``reproduce`` and ``layout-study`` (the ``eval`` package).
+
+Each writes a folder with ``results.json``, ``report.md``, ``report.html`` and
+plots. A run that fails (an estimator not available, or one that raises on a
+drive) is reported in its table cell and in ``results.json``; the command then
+prints a summary of the failures on stderr and exits with status 1. User
+mistakes (bad options, a drive without truth) exit with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+
+def _add_execution_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-o", "--output", required=True, type=Path, help="output folder (created)")
+    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run on a Dask cluster, e.g. tcp://host:8786, instead of the local pool")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def register(sub) -> None:
+    p = sub.add_parser("evaluate", help="run estimators over drives and write a comparison report",
+                       description="Run estimators over drives with truth; write results.json, report.md/html, "
+                                   "plots, TUM/KML/GeoJSON/CSV exports and one MCAP per drive.")
+    p.add_argument("drives", nargs="+", help="drive MCAP files (with a truth channel)")
+    p.add_argument("-e", "--estimator", dest="estimators", action="append", required=True, metavar="NAME",
+                   help="estimator name (repeat, or comma-separate); see `graphpos estimators`")
+    p.add_argument("--layout", default=None, help="tag layout the estimators hear (default: every tag)")
+    p.add_argument("--range-model", default=None, type=str, metavar="FILE", help="saved range model (JSON)")
+    _add_execution_options(p)
+    p.set_defaults(func=_evaluate)
+
+    p = sub.add_parser("reproduce", help="reproduce the papers' tables on simulated drives (and Plaza)",
+                       description="The papers' experiments on simulated drives built to their specifications, "
+                                   "published figures beside ours, the factor-graph estimators as extra columns.")
+    p.add_argument("--quick", action="store_true", help="fewer seeds and patterns (under 3 minutes on 2 cores)")
+    p.add_argument("--seeds", type=int, default=None, help="seeds per experiment (default 5, quick 2)")
+    p.add_argument("--plaza", type=Path, default=None, metavar="FILE.mat",
+                   help="the Plaza dataset (default: <repo>/../shared/data/plaza/Plaza1.mat when present)")
+    _add_execution_options(p)
+    p.set_defaults(func=_reproduce)
+
+    p = sub.add_parser("layout-study", help="RMS error against number of tags (how few tags suffice)",
+                       description="RMS in the tunnel against the number of tags (dense, optimized, groups every "
+                                   "60/90/120 m) for fusion-ekf, fukf, graph-isam2 and graph-batch over seeds.")
+    p.add_argument("scenario", help="simulation scenario (e.g. paper-straight)")
+    p.add_argument("--seeds", type=int, default=3, help="seeds per layout (default 3)")
+    p.add_argument("-e", "--estimator", dest="estimators", action="append", default=None, metavar="NAME",
+                   help="estimators (default: fusion-ekf, fukf, graph-isam2, graph-batch)")
+    _add_execution_options(p)
+    p.set_defaults(func=_layout_study)
+
+
+def _names(values: list[str]) -> list[str]:
+    return [n.strip() for v in values for n in v.split(",") if n.strip()]
+
+
+def _finish(outcome, started: float, command: str) -> int:
+    failed = outcome.failures
+    took = time.perf_counter() - started
+    print(f"{command}: wrote {outcome.folder}/report.md, report.html, results.json in {took:.1f} s")
+    if failed:
+        print(f"{command}: {len(failed)} of {len(outcome.results)} runs failed:", file=sys.stderr)
+        for r in failed:
+            where = r.drive_name or "?"
+            print(f"  {r.job.estimator} on {where}: {r.error}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _evaluate(args) -> int:
+    from eval.evaluate import evaluate, file_sources
+    from graphpos.errors import ConfigError
+    from graphpos.registry import estimator_classes
+
+    started = time.perf_counter()
+    names = _names(args.estimators)
+    known = estimator_classes()
+    unknown = [n for n in names if n not in known]
+    if unknown:
+        raise ConfigError(f"unknown estimator(s) {', '.join(unknown)} (known: {', '.join(known) or 'none'})")
+    if args.range_model is not None and not Path(args.range_model).is_file():
+        raise ConfigError(f"range model file {args.range_model} does not exist")
+    drives = file_sources(args.drives)
+    outcome = evaluate(drives, names, args.output, layout=args.layout, range_model=args.range_model,
+                       workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    return _finish(outcome, started, "evaluate")
+
+
+def _reproduce(args) -> int:
+    from eval.reproduce import reproduce
+
+    started = time.perf_counter()
+    outcome = reproduce(args.output, quick=args.quick, seeds=args.seeds, plaza=args.plaza,
+                        workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    return _finish(outcome, started, "reproduce")
+
+
+def _layout_study(args) -> int:
+    from eval.layout_study import layout_study
+
+    started = time.perf_counter()
+    outcome = layout_study(args.scenario, args.output, seeds=args.seeds,
+                           estimators=_names(args.estimators) if args.estimators else None,
+                           workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    return _finish(outcome, started, "layout-study")

@@ -1,0 +1,85 @@
+"""The evaluate pipeline: artefacts, failures, process pool against Dask."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from eval.evaluate import evaluate
+from eval.execution import Job, execute
+from graphpos.errors import MissingChannelError
+
+
+def _numbers(results_json: dict) -> list:
+    """The accuracy figures of results.json (wall times and RTF differ run to run)."""
+    out = []
+    for rec in results_json["results"]:
+        m = rec["metrics"]
+        out.append((rec["estimator"], rec["drive"], m["n_outputs"], m["output_rate_hz"],
+                    json.dumps(m["windows"], sort_keys=True)))
+    return out
+
+
+def test_evaluate_writes_every_artefact(tmp_path, drive, test_estimators):
+    out = tmp_path / "out"
+    outcome = evaluate([(drive, drive)], ["noisy-truth"], out, workers=1, progress=False, mcap=False)
+    assert not outcome.failures
+    for name in ("results.json", "report.md", "report.html"):
+        assert (out / name).stat().st_size > 0
+    sub = out / "straight"
+    for name in ("trajectories.png", "error_vs_time.png", "error_cdf.png", "speed_error.png",
+                 "noisy-truth.tum", "noisy-truth.kml", "noisy-truth.geojson", "noisy-truth.csv", "all_estimates.kml"):
+        assert (sub / name).stat().st_size > 0, name
+    html = (out / "report.html").read_text()
+    assert html.count("data:image/png;base64,") == 4
+    md = (out / "report.md").read_text()
+    assert "Window: in_tunnel" in md and "straight/trajectories.png" in md
+    res = json.loads((out / "results.json").read_text())
+    whole = res["results"][0]["metrics"]["windows"]["whole"]
+    # 0.5 m per axis: RMS of the 2-D error ~ 0.5 sqrt(2), ANEES ~ 2 (consistent)
+    assert whole["position"]["rms_m"] == pytest.approx(0.5 * math.sqrt(2), rel=0.15)
+    assert whole["nees"]["anees"] == pytest.approx(2.0, rel=0.3)
+    assert res["provenance"]["packages"]["numpy"]
+    # TUM: 8 columns, one row per output
+    tum = np.loadtxt(sub / "noisy-truth.tum")
+    assert tum.shape == (len(drive.truth), 8)
+
+
+def test_failures_are_reported_not_raised(tmp_path, drive, test_estimators):
+    outcome = evaluate([(drive, drive)], ["noisy-truth", "broken", "no-such"], tmp_path, workers=1,
+                       progress=False, mcap=False)
+    errors = {r.job.estimator: r.error for r in outcome.results}
+    assert errors["noisy-truth"] is None
+    assert "boom" in errors["broken"] and "unknown estimator" in errors["no-such"]
+    md = (tmp_path / "report.md").read_text()
+    assert "FAILED: RuntimeError: boom" in md and "## Failures" in md
+    rec = json.loads((tmp_path / "results.json").read_text())["results"][1]
+    assert "RuntimeError" in rec["error"] and "Traceback" in rec["traceback"]
+
+
+def test_drive_without_truth_is_refused(tmp_path, drive, test_estimators):
+    bare = drive.replace(channels={"wheel": drive.wheel})
+    with pytest.raises(MissingChannelError, match="evaluate needs truth"):
+        evaluate([(bare, bare)], ["noisy-truth"], tmp_path, progress=False, mcap=False)
+
+
+def test_dask_gives_the_same_numbers_as_the_process_pool(tmp_path, drive, test_estimators):
+    distributed = pytest.importorskip("distributed")
+    evaluate([(drive, drive)], ["noisy-truth"], tmp_path / "pool", workers=2, progress=False, mcap=False)
+    with distributed.LocalCluster(n_workers=1, processes=False, threads_per_worker=1,
+                                  dashboard_address=None) as cluster:
+        evaluate([(drive, drive)], ["noisy-truth"], tmp_path / "dask", scheduler=cluster.scheduler_address,
+                 progress=False, mcap=False)
+    pool = json.loads((tmp_path / "pool" / "results.json").read_text())
+    dask = json.loads((tmp_path / "dask" / "results.json").read_text())
+    assert _numbers(pool) == _numbers(dask)
+
+
+def test_execute_keeps_job_order(drive, test_estimators):
+    jobs = [Job(drive, name) for name in ("broken", "noisy-truth", "broken")]
+    results = execute(jobs, workers=2, progress=False)
+    assert [r.job.estimator for r in results] == ["broken", "noisy-truth", "broken"]
+    assert [r.ok for r in results] == [False, True, False]
