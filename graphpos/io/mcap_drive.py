@@ -1,0 +1,801 @@
+"""Drives and estimates in MCAP files.
+
+One drive is one MCAP file (zstd chunks, message indexes, summary with
+statistics and chunk index). Every message is JSON (message encoding
+``json``, schema encoding ``jsonschema``), so Foxglove opens the file as it
+is and another tool can write a file :func:`read_drive` reads.
+
+File layout
+-----------
+Lossless topics (what :func:`read_drive` and :func:`read_estimates` decode,
+recognised by their *schema name*, not their topic):
+
+========================  =======================  ===============================
+topic                     schema                   one message per
+========================  =======================  ===============================
+``/imu`` ``/wheel`` ...   ``graphpos.<channel>``   row of that channel; the fields
+                                                   are the channel's columns
+                                                   (:data:`~graphpos.drive.CHANNEL_SPECS`)
+``/estimates/<name>``     ``graphpos.estimate``    output epoch of an estimator
+========================  =======================  ===============================
+
+A float is written with Python's shortest round-trip representation, so
+float64 values come back bit-exact; NaN is written as ``null`` and +-inf as
+``1e999``/``-1e999`` (valid JSON that parses back to +-inf). Integer columns
+(``tag_id``, ``rsu_id``) are JSON integers. Unknown fields are ignored on
+reading; a missing or null required field is an error naming the row.
+
+Viewing topics (Foxglove well-known schemas, written for people, never read
+back):
+
+- ``/truth/fix``, ``/gnss/fix``, ``/rsu/fix``, ``/estimates/<name>/fix``:
+  ``foxglove.LocationFix`` (latitude/longitude from east/north by
+  :func:`graphpos.io.geo.enu_to_geodetic` about the drive's origin, so the
+  Map panel draws the track; GNSS and RSU fixes carry their sigma as a
+  diagonal covariance);
+- ``/truth/pose``, ``/estimates/<name>/pose``: ``foxglove.PoseInFrame`` in
+  frame ``enu`` (x east, y north, yaw about z);
+- ``/map``: one ``foxglove.GeoJSON`` message with the tags and RSUs as points.
+
+Truth and estimate views are thinned to at most :data:`VIEW_RATE_HZ` (the
+first sample of each 1/VIEW_RATE_HZ s bin): they are for the eye and the
+lossless topics hold every row.
+
+Everything that is not a time series is in the metadata record
+``graphpos.drive``: format version, name, origin, params (JSON), windows,
+tag map with layouts, RSU map. A file without that record (e.g. written by
+another tool) still reads: the drive is named after the file and has empty
+maps and the default origin.
+
+Times: message log and publish times are the measurement time ``t_s`` in
+integer nanoseconds, shifted by ``time_base_s`` (metadata; 0 unless the
+drive has negative times) and clipped to the uint64 range. They order the
+file and drive the viewer; the exact float seconds are in each message's
+``t_s`` field (and ``arrival_s`` for late readings). On reading, each
+channel's rows keep the order of its messages in the file.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import tempfile
+import zlib
+from io import BytesIO
+from pathlib import Path
+from typing import Any, Iterable, Sequence
+
+import numpy as np
+import zstandard
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
+from mcap.records import Channel as McapChannel
+from mcap.records import Chunk, Metadata, Schema
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, Writer
+
+from graphpos import __version__
+from graphpos.drive import CHANNEL_SPECS, Channel, Drive, GeoOrigin, RsuMap, TagMap, Window
+from graphpos.errors import ConfigError, DriveError, FileFormatError, GraphposError
+from graphpos.estimate import Estimate
+from graphpos.io.geo import enu_to_geodetic
+
+#: Format written in the ``graphpos.drive`` metadata record.
+FORMAT_NAME = "graphpos.drive"
+FORMAT_VERSION = 1
+#: Maximum rate of the viewing topics of truth and estimates.
+VIEW_RATE_HZ = 10.0
+#: Frame of the pose topics.
+POSE_FRAME = "enu"
+
+_CHUNK_SIZE = 4 * 1024 * 1024
+_MAGIC = b"\x89MCAP0\r\n"
+_ESTIMATE_SCHEMA = "graphpos.estimate"
+_ESTIMATE_FIELDS = ("t_s", "east_m", "north_m", "v_east_mps", "v_north_mps", "yaw_rad", "cov_en_m2")
+_OPTIONAL_ESTIMATE_FIELDS = ("v_east_mps", "v_north_mps", "yaw_rad", "cov_en_m2")
+_MAX_UINT64_NS = 1.8e19
+
+
+def _schema_name(kind: str) -> str:
+    return f"graphpos.{kind}"
+
+
+_KIND_BY_SCHEMA = {_schema_name(kind): kind for kind in CHANNEL_SPECS}
+
+
+# ---------------------------------------------------------------------------
+# JSON schemas
+# ---------------------------------------------------------------------------
+
+
+def _channel_schema(kind: str) -> dict[str, Any]:
+    props = {}
+    for spec in CHANNEL_SPECS[kind]:
+        if spec.integer:
+            props[spec.name] = {"type": "integer", "minimum": spec.lo, "maximum": spec.hi}
+        elif spec.required:
+            props[spec.name] = {"type": "number", "minimum": spec.lo, "maximum": spec.hi}
+        else:
+            props[spec.name] = {"type": ["number", "null"], "description": "null where the source does not give it"}
+    return {
+        "title": _schema_name(kind),
+        "description": f"One row of the graphpos '{kind}' channel (units in the field names).",
+        "type": "object",
+        "properties": props,
+        "required": [s.name for s in CHANNEL_SPECS[kind] if s.required],
+    }
+
+
+def _estimate_schema() -> dict[str, Any]:
+    nullable = {"type": ["number", "null"]}
+    return {
+        "title": _ESTIMATE_SCHEMA,
+        "description": "One output epoch of a graphpos estimator; null where it does not estimate the quantity.",
+        "type": "object",
+        "properties": {
+            "t_s": {"type": "number"},
+            "east_m": {"type": "number"},
+            "north_m": {"type": "number"},
+            "v_east_mps": nullable,
+            "v_north_mps": nullable,
+            "yaw_rad": nullable,
+            "cov_en_m2": {
+                "type": ["array", "null"],
+                "items": {"type": "number"},
+                "minItems": 4,
+                "maxItems": 4,
+                "description": "east/north position covariance, row-major [ee, en, ne, nn]",
+            },
+        },
+        "required": ["t_s", "east_m", "north_m"],
+    }
+
+
+_TIME = {
+    "type": "object",
+    "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
+}
+_LOCATION_FIX_SCHEMA = {
+    "title": "foxglove.LocationFix",
+    "type": "object",
+    "properties": {
+        "timestamp": _TIME,
+        "frame_id": {"type": "string"},
+        "latitude": {"type": "number"},
+        "longitude": {"type": "number"},
+        "altitude": {"type": "number"},
+        "position_covariance": {"type": "array", "items": {"type": "number"}, "minItems": 9, "maxItems": 9},
+        "position_covariance_type": {"type": "integer", "minimum": 0, "maximum": 3},
+    },
+}
+_VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
+_QUAT = {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}
+_POSE_IN_FRAME_SCHEMA = {
+    "title": "foxglove.PoseInFrame",
+    "type": "object",
+    "properties": {
+        "timestamp": _TIME,
+        "frame_id": {"type": "string"},
+        "pose": {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}},
+    },
+}
+_GEOJSON_SCHEMA = {
+    "title": "foxglove.GeoJSON",
+    "type": "object",
+    "properties": {"geojson": {"type": "string", "description": "GeoJSON data encoded as a string"}},
+}
+
+
+# ---------------------------------------------------------------------------
+# Encoding
+# ---------------------------------------------------------------------------
+
+
+def _float_texts(values: np.ndarray) -> list[str]:
+    """JSON texts of float64 values: shortest round-trip repr, null for NaN."""
+    arr = np.asarray(values, dtype=np.float64)
+    texts = list(map(float.__repr__, arr.tolist()))
+    bad = np.flatnonzero(~np.isfinite(arr))
+    for i in bad.tolist():
+        v = arr[i]
+        texts[i] = "null" if np.isnan(v) else ("1e999" if v > 0 else "-1e999")
+    return texts
+
+
+def _int_texts(values: np.ndarray) -> list[str]:
+    arr = np.asarray(values, dtype=np.float64)
+    if not np.all(np.isfinite(arr)):
+        return _float_texts(arr)
+    return list(map(str, arr.astype(np.int64).tolist()))
+
+
+def _encode_rows(names: Sequence[str], texts: Sequence[list[str]]) -> list[bytes]:
+    """One JSON object per row from per-column value texts."""
+    template = "{" + ",".join(f'"{name}":%s' for name in names) + "}"
+    fill = template.__mod__
+    return [s.encode() for s in map(fill, zip(*texts))]
+
+
+def _time_ns(t_s: np.ndarray, base_s: float) -> np.ndarray:
+    ns = np.round((np.asarray(t_s, dtype=np.float64) - base_s) * 1e9)
+    return np.clip(np.nan_to_num(ns, nan=0.0), 0.0, _MAX_UINT64_NS).astype(np.uint64)
+
+
+def _stamps(ns: np.ndarray) -> tuple[list[str], list[str]]:
+    return list(map(str, (ns // 1_000_000_000).tolist())), list(map(str, (ns % 1_000_000_000).tolist()))
+
+
+def _thin(t_s: np.ndarray, rate_hz: float) -> np.ndarray:
+    """Indexes of the first sample of each 1/rate_hz bin."""
+    if t_s.size == 0:
+        return np.zeros(0, dtype=np.int64)
+    bins = np.floor(np.asarray(t_s) * rate_hz)
+    return np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])
+
+
+def _location_fixes(t_ns: np.ndarray, east_m, north_m, sigma_m, origin: GeoOrigin) -> list[bytes]:
+    lat, lon = enu_to_geodetic(east_m, north_m, origin)
+    sec, nsec = _stamps(t_ns)
+    n = t_ns.size
+    if sigma_m is None:
+        cov = ["[0,0,0,0,0,0,0,0,0]"] * n
+        cov_type = ["0"] * n
+    else:
+        var = np.asarray(sigma_m, dtype=np.float64) ** 2
+        cov = [f"[{v!r},0,0,0,{v!r},0,0,0,0]" for v in var.tolist()]
+        cov_type = ["2"] * n
+    names = ("timestamp", "frame_id", "latitude", "longitude", "altitude", "position_covariance", "position_covariance_type")
+    stamp = [f'{{"sec":{s},"nsec":{ns}}}' for s, ns in zip(sec, nsec)]
+    return _encode_rows(
+        names,
+        [stamp, [f'"{POSE_FRAME}"'] * n, _float_texts(lat), _float_texts(lon), [repr(float(origin.alt_m))] * n, cov, cov_type],
+    )
+
+
+def _poses(t_ns: np.ndarray, east_m, north_m, yaw_rad) -> list[bytes]:
+    sec, nsec = _stamps(t_ns)
+    yaw = np.nan_to_num(np.asarray(yaw_rad, dtype=np.float64)) if yaw_rad is not None else np.zeros(t_ns.size)
+    qz, qw = _float_texts(np.sin(yaw / 2)), _float_texts(np.cos(yaw / 2))
+    e, n = _float_texts(east_m), _float_texts(north_m)
+    return [
+        (
+            f'{{"timestamp":{{"sec":{s},"nsec":{ns}}},"frame_id":"{POSE_FRAME}","pose":{{"position":{{"x":{x},"y":{y},"z":0.0}},'
+            f'"orientation":{{"x":0.0,"y":0.0,"z":{z},"w":{w}}}}}}}'
+        ).encode()
+        for s, ns, x, y, z, w in zip(sec, nsec, e, n, qz, qw)
+    ]
+
+
+def _map_geojson(drive: Drive, origin: GeoOrigin) -> bytes:
+    features = []
+    tags = drive.tags
+    lat, lon = enu_to_geodetic(tags.east_m, tags.north_m, origin)
+    member = {name: set(ids.tolist()) for name, ids in tags.layouts.items()}
+    for i, tag_id in enumerate(tags.tag_id.tolist()):
+        props = {
+            "kind": "tag",
+            "tag_id": tag_id,
+            "wall_side": int(tags.wall_side[i]),
+            "group": int(tags.group[i]),
+            "layouts": [name for name, ids in member.items() if tag_id in ids],
+        }
+        features.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon[i], lat[i]]}, "properties": props})
+    lat, lon = enu_to_geodetic(drive.rsus.east_m, drive.rsus.north_m, origin)
+    for i, rsu_id in enumerate(drive.rsus.rsu_id.tolist()):
+        features.append(
+            {"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon[i], lat[i]]}, "properties": {"kind": "rsu", "rsu_id": rsu_id}}
+        )
+    geojson = json.dumps({"type": "FeatureCollection", "features": features})
+    return json.dumps({"geojson": geojson}).encode()
+
+
+def _jsonable(value: Any) -> Any:
+    """json.dumps fallback: numpy scalars/arrays as Python values, tuples as lists."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
+
+
+def _dumps(value: Any, what: str) -> str:
+    try:
+        return json.dumps(value, default=_jsonable)
+    except (TypeError, ValueError) as exc:
+        raise ConfigError(f"{what} cannot be stored in the file: {exc}") from None
+
+
+def _drive_metadata(drive: Drive, origin: GeoOrigin, base_s: float) -> dict[str, str]:
+    tags, rsus = drive.tags, drive.rsus
+    return {
+        "format": f"{FORMAT_NAME}/{FORMAT_VERSION}",
+        "name": drive.name,
+        "origin": json.dumps({"lat_deg": float(origin.lat_deg), "lon_deg": float(origin.lon_deg), "alt_m": float(origin.alt_m)}),
+        "params": _dumps(drive.params, "drive params"),
+        "windows": json.dumps([{"label": w.label, "start_s": float(w.start_s), "end_s": float(w.end_s)} for w in drive.windows]),
+        "tags": json.dumps(
+            {
+                "tag_id": tags.tag_id.tolist(),
+                "east_m": tags.east_m.tolist(),
+                "north_m": tags.north_m.tolist(),
+                "wall_side": tags.wall_side.tolist(),
+                "group": tags.group.tolist(),
+                "layouts": {name: ids.tolist() for name, ids in tags.layouts.items()},
+            }
+        ),
+        "rsus": json.dumps({"rsu_id": rsus.rsu_id.tolist(), "east_m": rsus.east_m.tolist(), "north_m": rsus.north_m.tolist()}),
+        "time_base_s": repr(base_s),
+    }
+
+
+class _Topic:
+    """Messages of one topic, ready to be merged into the file."""
+
+    __slots__ = ("topic", "schema", "metadata", "t_ns", "data")
+
+    def __init__(self, topic: str, schema: dict, t_ns: np.ndarray, data: list[bytes], metadata: dict[str, str] | None = None):
+        self.topic = topic
+        self.schema = schema
+        self.metadata = metadata or {}
+        self.t_ns = t_ns
+        self.data = data
+
+
+def _drive_topics(drive: Drive, origin: GeoOrigin, base_s: float) -> list[_Topic]:
+    topics = []
+    for kind, ch in drive.channels.items():
+        texts = [(_int_texts if spec.integer else _float_texts)(ch[spec.name]) for spec in ch.specs]
+        t_ns = _time_ns(ch.t_s, base_s)
+        topics.append(_Topic(f"/{kind}", _channel_schema(kind), t_ns, _encode_rows([s.name for s in ch.specs], texts)))
+    if drive.has("truth"):
+        truth = drive.truth
+        keep = _thin(truth.t_s, VIEW_RATE_HZ)
+        t_ns = _time_ns(truth.t_s[keep], base_s)
+        e, n = truth.east_m[keep], truth.north_m[keep]
+        topics.append(_Topic("/truth/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, n, None, origin)))
+        topics.append(_Topic("/truth/pose", _POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, n, truth.yaw_rad[keep])))
+    if drive.has("gnss"):
+        g = drive.gnss
+        t_ns = _time_ns(g.t_s, base_s)
+        topics.append(_Topic("/gnss/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, g.east_m, g.north_m, g.sigma_m, origin)))
+    if drive.has("rsu"):
+        r = drive.rsu
+        fix = np.isfinite(r.east_m) & np.isfinite(r.north_m)
+        if fix.any():
+            t_ns = _time_ns(r.t_s[fix], base_s)
+            data = _location_fixes(t_ns, r.east_m[fix], r.north_m[fix], r.sigma_m[fix], origin)
+            topics.append(_Topic("/rsu/fix", _LOCATION_FIX_SCHEMA, t_ns, data))
+    if len(drive.tags) or len(drive.rsus):
+        topics.append(_Topic("/map", _GEOJSON_SCHEMA, _time_ns(np.array([drive.start_s]), base_s), [_map_geojson(drive, origin)]))
+    return topics
+
+
+def _estimate_topics(estimates: Sequence[Estimate], origin: GeoOrigin, base_s: float) -> list[_Topic]:
+    topics = []
+    seen: set[str] = set()
+    for est in estimates:
+        if not isinstance(est, Estimate):
+            raise ConfigError(f"estimates must be Estimate objects, got {type(est).__name__}")
+        if not est.name or est.name in seen:
+            raise ConfigError(f"estimate name {est.name!r} is empty or used twice; each estimate needs its own name")
+        seen.add(est.name)
+        n = len(est)
+        present = [f for f in _OPTIONAL_ESTIMATE_FIELDS if getattr(est, f) is not None]
+        texts = []
+        for name in _ESTIMATE_FIELDS[:-1]:
+            arr = getattr(est, name)
+            texts.append(_float_texts(arr) if arr is not None else ["null"] * n)
+        if est.cov_en_m2 is not None:
+            flat = _float_texts(est.cov_en_m2.reshape(-1))
+            texts.append(["[" + ",".join(flat[4 * i : 4 * i + 4]) + "]" for i in range(n)])
+        else:
+            texts.append(["null"] * n)
+        t_ns = _time_ns(est.t_s, base_s)
+        meta = {
+            "estimator": est.name,
+            "fields": ",".join(present),
+            "rate_hz": repr(float(est.rate_hz)),
+            "wall_time_s": repr(float(est.wall_time_s)),
+            "diagnostics": _dumps(est.diagnostics, f"diagnostics of estimate '{est.name}'"),
+        }
+        topic = f"/estimates/{est.name}"
+        topics.append(_Topic(topic, _estimate_schema(), t_ns, _encode_rows(_ESTIMATE_FIELDS, texts), meta))
+        keep = _thin(est.t_s, VIEW_RATE_HZ)
+        t_ns = t_ns[keep]
+        e, nn = est.east_m[keep], est.north_m[keep]
+        sigma = None
+        if est.cov_en_m2 is not None:
+            sigma = np.sqrt(np.abs(0.5 * (est.cov_en_m2[keep, 0, 0] + est.cov_en_m2[keep, 1, 1])))
+        yaw = est.yaw_rad[keep] if est.yaw_rad is not None else None
+        topics.append(_Topic(f"{topic}/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, nn, sigma, origin)))
+        topics.append(_Topic(f"{topic}/pose", _POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, nn, yaw)))
+    return topics
+
+
+def _time_base_s(drive: Drive, estimates: Sequence[Estimate]) -> float:
+    starts = [drive.start_s] + [float(np.nanmin(e.t_s)) for e in estimates if len(e) and np.isfinite(e.t_s).any()]
+    return min(0.0, float(np.floor(min(starts))))
+
+
+def write_drive(path: str | os.PathLike, drive: Drive, estimates: Iterable[Estimate] = (), origin: GeoOrigin | None = None) -> None:
+    """Write a drive (and optionally estimates of it) to one MCAP file.
+
+    The file is written to a temporary file in the same folder and renamed
+    into place, so a failure leaves no partial output.
+
+    Parameters
+    ----------
+    path : path-like
+        Output file (conventionally ``*.mcap``); replaced if it exists.
+    drive : Drive
+    estimates : iterable of Estimate
+        Written as ``/estimates/<name>`` topics (names must be unique).
+    origin : GeoOrigin, optional
+        Geodetic origin of the local frame; defaults to ``drive.origin``.
+        It is stored in the file and places the track on Foxglove's map.
+
+    Raises
+    ------
+    ConfigError
+        Params or diagnostics that are not JSON-serialisable, duplicate
+        estimate names.
+    FileFormatError
+        The file cannot be written (missing folder, no permission ...).
+    """
+    path = Path(path)
+    estimates = list(estimates)
+    origin = origin if origin is not None else drive.origin
+    base_s = _time_base_s(drive, estimates)
+    metadata = _drive_metadata(drive, origin, base_s)
+    topics = _drive_topics(drive, origin, base_s) + _estimate_topics(estimates, origin, base_s)
+    folder = path.parent if str(path.parent) else Path(".")
+    try:
+        fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    try:
+        with os.fdopen(fd, "wb") as stream:
+            _write_mcap(stream, metadata, topics)
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp_name, 0o666 & ~umask)
+        os.replace(tmp_name, path)
+    except OSError as exc:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise FileFormatError(f"{path}: cannot write ({exc.strerror or exc})") from None
+    except BaseException:
+        Path(tmp_name).unlink(missing_ok=True)
+        raise
+
+
+def _write_mcap(stream, metadata: dict[str, str], topics: list[_Topic]) -> None:
+    writer = Writer(stream, chunk_size=_CHUNK_SIZE, compression=CompressionType.ZSTD)
+    writer.start(profile="", library=f"graphpos {__version__}; {LIBRARY_IDENTIFIER}")
+    writer.add_metadata(FORMAT_NAME, metadata)
+    schema_ids: dict[str, int] = {}
+    channel_ids = []
+    for topic in topics:
+        title = topic.schema["title"]
+        if title not in schema_ids:
+            schema_ids[title] = writer.register_schema(title, "jsonschema", json.dumps(topic.schema).encode())
+        channel_ids.append(writer.register_channel(topic.topic, "json", schema_ids[title], topic.metadata))
+    if not topics:
+        writer.finish()
+        return
+    # Merge every topic in time order. The sort key is each topic's running
+    # maximum of its times, so rows of one topic keep their order even where
+    # its times are not sorted (an estimate's), and ties keep topic order.
+    key = np.concatenate([np.maximum.accumulate(t.t_ns) if t.t_ns.size else t.t_ns for t in topics])
+    times = np.concatenate([t.t_ns for t in topics]).tolist()
+    ids = np.concatenate([np.full(len(t.data), cid, dtype=np.int64) for t, cid in zip(topics, channel_ids)]).tolist()
+    data = [d for t in topics for d in t.data]
+    add = writer.add_message
+    for i in np.argsort(key, kind="stable").tolist():
+        add(ids[i], times[i], data[i], times[i])
+    writer.finish()
+
+
+# ---------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------
+
+_RECORD_HEADER = struct.Struct("<BQ")
+_MESSAGE_CHANNEL = struct.Struct("<H")
+_MAX_CHUNK_BYTES = 2**32
+
+
+class _Corrupt(Exception):
+    """Internal: the MCAP byte structure is broken."""
+
+
+class _Contents:
+    """What a file holds: schemas, channels, message payloads, metadata."""
+
+    def __init__(self) -> None:
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, McapChannel] = {}
+        self.payloads: dict[int, list[bytes]] = {}
+        self.metadata: dict[str, dict[str, str]] = {}
+        self.library = ""
+
+    def record(self, opcode: int, body: bytes | memoryview) -> None:
+        """Parse one non-message record."""
+        if opcode == Opcode.SCHEMA:
+            schema = Schema.read(ReadDataStream(BytesIO(body)))
+            self.schemas[schema.id] = schema
+        elif opcode == Opcode.CHANNEL:
+            channel = McapChannel.read(ReadDataStream(BytesIO(body)))
+            self.channels[channel.id] = channel
+        elif opcode == Opcode.METADATA:
+            meta = Metadata.read(ReadDataStream(BytesIO(body)))
+            self.metadata.setdefault(meta.name, meta.metadata)
+        elif opcode == Opcode.HEADER:
+            stream = ReadDataStream(BytesIO(body))
+            stream.read_prefixed_string()
+            self.library = stream.read_prefixed_string()
+
+    def walk(self, data: bytes | memoryview, in_chunk: bool) -> bool:
+        """Walk the records in ``data``; True when a footer was reached."""
+        pos, end = 0, len(data)
+        unpack = _RECORD_HEADER.unpack_from
+        channel_of = _MESSAGE_CHANNEL.unpack_from
+        payloads = self.payloads
+        while pos < end:
+            if pos + 9 > end:
+                raise _Corrupt("a record header is cut off")
+            opcode, length = unpack(data, pos)
+            start = pos + 9
+            pos = start + length
+            if pos > end:
+                raise _Corrupt(f"a record (opcode {opcode:#x}) runs past the end of the {'chunk' if in_chunk else 'file'}")
+            if opcode == Opcode.MESSAGE:
+                if length < 22:
+                    raise _Corrupt("a message record is too short")
+                (cid,) = channel_of(data, start)
+                bucket = payloads.get(cid)
+                if bucket is None:
+                    bucket = payloads[cid] = []
+                bucket.append(bytes(data[start + 22 : pos]))
+            elif opcode == Opcode.CHUNK and not in_chunk:
+                self.walk(_chunk_data(data[start:pos]), in_chunk=True)
+            elif opcode == Opcode.FOOTER and not in_chunk:
+                if bytes(data[pos : pos + 8]) != _MAGIC or pos + 8 != end:
+                    raise _Corrupt("the footer is not followed by the closing magic bytes")
+                return True
+            else:
+                self.record(opcode, data[start:pos])
+        return False
+
+
+def _chunk_data(body: memoryview) -> bytes:
+    chunk = Chunk.read(ReadDataStream(BytesIO(body)))
+    if chunk.uncompressed_size > _MAX_CHUNK_BYTES:
+        raise _Corrupt("a chunk claims an implausible size")
+    if chunk.compression == "zstd":
+        data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+    elif chunk.compression == "":
+        data = chunk.data
+    elif chunk.compression == "lz4":
+        import lz4.frame
+
+        data = lz4.frame.decompress(chunk.data)
+    else:
+        raise _Corrupt(f"unsupported chunk compression {chunk.compression!r}")
+    if len(data) != chunk.uncompressed_size:
+        raise _Corrupt("a chunk's size does not match its header")
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:
+        raise _Corrupt("a chunk fails its CRC check")
+    return data
+
+
+def _scan(path: Path) -> _Contents:
+    """Every record of an MCAP file, or FileFormatError."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise FileFormatError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise FileFormatError(f"{path}: is a folder, not an MCAP file") from None
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    if not raw:
+        raise FileFormatError(f"{path}: empty file")
+    if not raw.startswith(_MAGIC):
+        raise FileFormatError(f"{path}: not an MCAP file (no MCAP magic bytes at the start)")
+    contents = _Contents()
+    try:
+        complete = contents.walk(memoryview(raw)[8:], in_chunk=False)
+    except _Corrupt as exc:
+        raise FileFormatError(f"{path}: corrupt MCAP file: {exc}") from None
+    except Exception as exc:  # noqa: BLE001 - any failure decoding corrupt bytes is a corrupt file
+        raise FileFormatError(f"{path}: corrupt MCAP file ({type(exc).__name__}: {exc})") from None
+    if not complete:
+        raise FileFormatError(f"{path}: truncated MCAP file (no footer; was writing interrupted?)")
+    return contents
+
+
+def _decode_messages(payloads: list[bytes], where: str) -> list[dict]:
+    loads = json.loads
+    try:
+        rows = [loads(p) for p in payloads]
+    except (ValueError, UnicodeDecodeError, RecursionError):
+        for i, p in enumerate(payloads):
+            try:
+                loads(p)
+            except (ValueError, UnicodeDecodeError, RecursionError) as exc:
+                raise FileFormatError(f"{where}, message {i}: not valid JSON ({exc})") from None
+        raise
+    for i, row in enumerate(rows):
+        if type(row) is not dict:
+            raise FileFormatError(f"{where}, message {i}: expected a JSON object, got {type(row).__name__}")
+    return rows
+
+
+def _column(rows: list[dict], name: str, where: str) -> np.ndarray:
+    values = [row.get(name) for row in rows]
+    try:
+        return np.array(values, dtype=np.float64).reshape(len(values))
+    except (TypeError, ValueError, OverflowError):
+        for i, v in enumerate(values):
+            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
+                raise FileFormatError(f"{where}, message {i}: field '{name}' is not a number ({v!r:.40})") from None
+            try:
+                float(v if v is not None else 0.0)
+            except OverflowError:
+                raise FileFormatError(f"{where}, message {i}: field '{name}' is out of range") from None
+        raise
+
+
+def _decode_channel(kind: str, rows: list[dict], where: str) -> Channel:
+    columns = {}
+    for spec in CHANNEL_SPECS[kind]:
+        arr = _column(rows, spec.name, where)
+        if spec.required:
+            missing = np.isnan(arr)
+            if missing.any():
+                raise DriveError(kind, int(np.argmax(missing)), f"field '{spec.name}' is missing, null or NaN")
+        columns[spec.name] = arr
+    return Channel(kind, columns)
+
+
+def _graphpos_channels(contents: _Contents, path: Path, schema_names: set[str]) -> list[tuple[str, McapChannel]]:
+    """(schema name, channel) of the channels carrying one of ``schema_names``."""
+    found = []
+    for cid in sorted(contents.channels):
+        channel = contents.channels[cid]
+        schema = contents.schemas.get(channel.schema_id)
+        if schema is None or schema.name not in schema_names:
+            continue
+        if channel.message_encoding != "json":
+            raise FileFormatError(
+                f"{path}: topic {channel.topic} ({schema.name}) has message encoding {channel.message_encoding!r}; graphpos reads 'json'"
+            )
+        found.append((schema.name, channel))
+    unknown = set(contents.payloads) - set(contents.channels)
+    if unknown:
+        raise FileFormatError(f"{path}: corrupt MCAP file: messages on channel id {min(unknown)}, which is never defined")
+    return found
+
+
+def _meta_json(meta: dict[str, str], key: str, default: Any, path: Path) -> Any:
+    if key not in meta:
+        return default
+    try:
+        return json.loads(meta[key])
+    except ValueError as exc:
+        raise FileFormatError(f"{path}: metadata '{FORMAT_NAME}' key '{key}' is not valid JSON ({exc})") from None
+
+
+def _drive_from(contents: _Contents, path: Path) -> Drive:
+    meta = contents.metadata.get(FORMAT_NAME)
+    found = _graphpos_channels(contents, path, set(_KIND_BY_SCHEMA))
+    if meta is None and not found:
+        topics = sorted({c.topic for c in contents.channels.values()})
+        shown = ", ".join(topics[:6]) + (" ..." if len(topics) > 6 else "")
+        raise FileFormatError(
+            f"{path}: not a graphpos drive (no '{FORMAT_NAME}' metadata and no graphpos.* channels; topics: {shown or 'none'})"
+        )
+    meta = meta or {}
+    fmt = meta.get("format", f"{FORMAT_NAME}/{FORMAT_VERSION}")
+    name_part, _, version = fmt.partition("/")
+    if name_part != FORMAT_NAME or not version.isdigit() or int(version) > FORMAT_VERSION:
+        raise FileFormatError(f"{path}: unsupported drive format {fmt!r} (this graphpos reads {FORMAT_NAME}/{FORMAT_VERSION})")
+    channels = {}
+    for schema_name, channel in found:
+        kind = _KIND_BY_SCHEMA[schema_name]
+        if kind in channels:
+            raise FileFormatError(f"{path}: two topics carry the '{kind}' channel (schema {schema_name})")
+        where = f"{path}: topic {channel.topic}"
+        rows = _decode_messages(contents.payloads.get(channel.id, []), where)
+        try:
+            channels[kind] = _decode_channel(kind, rows, where)
+        except DriveError as exc:
+            raise exc.with_source(str(path)) from None
+    try:
+        origin = GeoOrigin(**_meta_json(meta, "origin", {}, path))
+        tags_json = _meta_json(meta, "tags", None, path)
+        rsus_json = _meta_json(meta, "rsus", None, path)
+        windows_json = _meta_json(meta, "windows", [], path)
+        params = _meta_json(meta, "params", {}, path)
+        if not isinstance(params, dict):
+            raise FileFormatError(f"{path}: metadata 'params' is not a JSON object")
+        tags = TagMap(**tags_json) if tags_json is not None else TagMap.empty()
+        rsus = RsuMap(**rsus_json) if rsus_json is not None else RsuMap.empty()
+        windows = tuple(Window(**w) for w in windows_json)
+        return Drive(
+            name=str(meta.get("name", path.stem)),
+            channels=channels,
+            tags=tags,
+            rsus=rsus,
+            windows=windows,
+            origin=origin,
+            params=params,
+        )
+    except DriveError as exc:
+        raise exc.with_source(str(path)) from None
+    except GraphposError:
+        raise
+    except (TypeError, ValueError, AttributeError) as exc:
+        raise FileFormatError(f"{path}: metadata '{FORMAT_NAME}' is malformed ({exc})") from None
+
+
+def read_drive(path: str | os.PathLike) -> Drive:
+    """Read the drive of an MCAP file written by :func:`write_drive` or any
+    tool that writes the same schemas.
+
+    Raises
+    ------
+    FileFormatError
+        Missing, empty, truncated, corrupt or foreign file (the message names
+        the file, and the topic and message where known).
+    DriveError
+        The content fails drive validation (names the file, channel and row).
+    """
+    path = Path(path)
+    return _drive_from(_scan(path), path)
+
+
+def _estimate_from(channel: McapChannel, payloads: list[bytes], path: Path) -> Estimate:
+    where = f"{path}: topic {channel.topic}"
+    meta = channel.metadata
+    rows = _decode_messages(payloads, where)
+    name = meta.get("estimator") or channel.topic.rsplit("/", 1)[-1]
+    present = set(filter(None, meta.get("fields", ",".join(_OPTIONAL_ESTIMATE_FIELDS)).split(",")))
+    cols: dict[str, Any] = {}
+    for field in _ESTIMATE_FIELDS[:-1]:
+        arr = _column(rows, field, where)
+        if field in ("t_s", "east_m", "north_m") or field in present:
+            cols[field] = arr
+        else:
+            cols[field] = None
+    if "cov_en_m2" in present:
+        covs = [row.get("cov_en_m2") for row in rows]
+        flat = [[np.nan] * 4 if c is None else c for c in covs]
+        try:
+            cov = np.array(flat, dtype=np.float64)
+        except (TypeError, ValueError, OverflowError):
+            cov = None
+        if cov is None or cov.shape != (len(rows), 4):
+            raise FileFormatError(f"{where}: field 'cov_en_m2' must be null or 4 numbers in every message")
+        cols["cov_en_m2"] = cov.reshape(-1, 2, 2)
+    try:
+        diagnostics = json.loads(meta.get("diagnostics", "{}"))
+        rate_hz = float(meta.get("rate_hz", "nan"))
+        wall_time_s = float(meta.get("wall_time_s", "nan"))
+    except ValueError as exc:
+        raise FileFormatError(f"{where}: malformed channel metadata ({exc})") from None
+    return Estimate(name=name, rate_hz=rate_hz, wall_time_s=wall_time_s, diagnostics=diagnostics, **cols)
+
+
+def read_estimates(path: str | os.PathLike) -> list[Estimate]:
+    """The estimates stored in an MCAP file (empty list if it holds none).
+
+    Raises
+    ------
+    FileFormatError
+        As :func:`read_drive`.
+    """
+    path = Path(path)
+    contents = _scan(path)
+    return [
+        _estimate_from(channel, contents.payloads.get(channel.id, []), path)
+        for _, channel in _graphpos_channels(contents, path, {_ESTIMATE_SCHEMA})
+    ]
