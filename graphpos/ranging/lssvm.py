@@ -166,13 +166,19 @@ class LssvmRangeModel(RssRangeModel):
     def _is_fitted(self) -> bool:
         return self.support_x.size > 0
 
+    @property
+    def input_range(self) -> tuple[float, float]:
+        """Smallest and largest training reading (inputs are clamped to it)."""
+        self._require_fitted()
+        return float(self.support_x.min()), float(self.support_x.max())
+
     def predict_distance_m(self, reading: np.ndarray) -> np.ndarray:
         """song2016 eq. 9 on the clamped reading (NaN in, NaN out)."""
         self._require_fitted()
         x = np.asarray(reading, dtype=np.float64)
         out = np.full(x.shape, np.nan)
         ok = np.isfinite(x)
-        xc = np.clip(x[ok], self.support_x.min(), self.support_x.max())
+        xc = np.clip(x[ok], *self.input_range)
         pred = np.empty(xc.size)
         chunk = max(1, 4_000_000 // max(self.support_x.size, 1))
         for start in range(0, xc.size, chunk):

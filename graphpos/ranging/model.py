@@ -74,10 +74,13 @@ class RangeModel(ABC):
         """Write the model as JSON (atomically: temporary file, then rename)."""
         path = Path(path)
         payload = json.dumps({"kind": self.kind, **self.to_dict()}, indent=1)
-        fd, tmp = tempfile.mkstemp(dir=path.parent if str(path.parent) else ".", suffix=".tmp")
-        with os.fdopen(fd, "w") as fh:
-            fh.write(payload)
-        os.replace(tmp, path)
+        try:
+            fd, tmp = tempfile.mkstemp(dir=path.parent if str(path.parent) else ".", suffix=".tmp")
+            with os.fdopen(fd, "w") as fh:
+                fh.write(payload)
+            os.replace(tmp, path)
+        except OSError as exc:
+            raise FileFormatError(f"{path}: cannot write the range model ({exc.strerror or exc})") from None
 
 
 _KINDS: dict[str, type[RangeModel]] = {}

@@ -21,6 +21,8 @@ class RssRangeModel(RangeModel):
 
     input_column: ClassVar[str] = "rss"
     sigma_table: SigmaTable | None = None
+    #: Smallest and largest training reading; readings are clamped to it.
+    input_range: tuple[float, float]
 
     def fit_sigma(self, reading: np.ndarray, true_distance_m: np.ndarray) -> "RssRangeModel":
         """Re-learn the range sigma from held-out readings (e.g. a fresh collection)."""
