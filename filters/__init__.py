@@ -7,6 +7,10 @@ merged here for :mod:`graphpos.registry`.
 from graphpos.estimator import Estimator
 
 from filters.song2016 import ESTIMATORS as _SONG2016
+from filters.lms import ESTIMATORS as _LMS
+from filters.song2014 import ESTIMATORS as _SONG2014
 
 ESTIMATORS: dict[str, type[Estimator]] = {}
 ESTIMATORS.update(_SONG2016)
+ESTIMATORS.update(_LMS)
+ESTIMATORS.update(_SONG2014)

@@ -1,0 +1,356 @@
+"""song2014 (Sensors 14, 23095): global fusion of the LMS-federated RFID
+positions with wheel speed and compass — EKF-CA, STEKF-CA and IMM-STEKF.
+
+The three estimators of the paper's Table 5 comparison share one
+implementation and differ only in their config:
+
+* ``ekf-ca``: one CA model (eq. 22), fading disabled — the paper's "EKF";
+* ``stekf-ca``: one CA model with the fading factor of §4.3 step (2) — "STEKF";
+* ``imm-stekf``: CA and CT (eq. 23) model-matched STEKFs in an IMM — "IMM".
+
+State ``[p_e, p_n, v_e, v_n, psi, omega]`` (eq. 21), observation
+``[x_RFID, y_RFID, v_wheel, psi_compass]`` (eq. 24); the models are in
+:mod:`filters.models.kinematic`, the STEKF in :mod:`filters.core.stekf`, the
+IMM in :mod:`filters.core.imm`, the RFID positions come from
+:mod:`filters.lms`.
+
+Timing (the paper runs its fusion at 10 Hz, the compass rate, with ``T`` the
+sampling interval): the filter steps at the output epochs (10 Hz). The
+epoch's IMU samples are averaged into the model input (``a_x, a_y`` for CA,
+``w_z`` for CT), its wheel speeds averaged into ``v_wheel``, the latest
+compass yaw taken as ``psi_compass``; an RFID fix completed during the epoch
+supplies the position rows. Rows without data that epoch are left out of
+``Z`` (the observation is the subset present). Deviation, and why: a fix is
+moved forward to the epoch time with the filter's velocity
+(``z = X_RFID + v (t_epoch - t_fix)``, latency compensation), because the
+LMS-federated scan completes up to a scan window after its readings and a
+vehicle at 2 m/s would otherwise see a 1 m lag.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from filters.core import imm, stekf
+from filters.core.stekf import FadingConfig, FadingMemory
+from filters.lms import Fix, LmsFederatedConfig, make_positioner
+from filters.models import kinematic as km
+from filters.models.angles import angle_residual, wrap_angle
+from graphpos.drive import Drive, Measurement
+from graphpos.errors import ConfigError, MissingChannelError
+from graphpos.estimate import Estimate, OutputRow
+from graphpos.estimator import Estimator
+
+_DEG = math.pi / 180.0
+_MODELS = ("ca", "ct")
+
+
+@dataclass
+class Song2014Config:
+    """Tunables of the song2014 fusion filters (defaults: the paper's §5 sensors).
+
+    Attributes
+    ----------
+    models : tuple of {"ca", "ct"}
+        The model set; one model runs a single (ST)EKF, several an IMM.
+    fading : FadingConfig
+        Strong tracking (``enabled=False`` for the plain EKF).
+    markov : tuple of tuples
+        IMM transition matrix ``pi[j][i]`` (rows sum to 1).
+    initial_probabilities : tuple of float
+        IMM model probabilities at start.
+    output_rate_hz : float
+        Filter and output rate (10 Hz in the paper).
+    accel_sigma_mps2, gyro_sigma_radps : float
+        Input noise 1-sigma (§5: 0.1 m/s^2, 0.2 deg/s), ``Gamma``.
+    ca_accel_noise_mps2 : float
+        Extra acceleration noise of the CA model (model error).
+    ca_yaw_accel_noise_radps2 : float
+        Random-walk intensity of the CA model's constant yaw rate.
+    ct_accel_noise_mps2 : float
+        Acceleration noise of the CT model (it keeps the speed constant).
+    wheel_sigma_mps, compass_sigma_rad : float
+        Observation noise 1-sigma.
+    rfid_sigma_floor_m : float
+        Floor on the 1-sigma of an LMS-federated fix.
+    lms : LmsFederatedConfig
+        The preliminary positioning.
+    """
+
+    models: tuple[str, ...] = ("ca",)
+    fading: FadingConfig = field(default_factory=FadingConfig)
+    markov: tuple[tuple[float, ...], ...] = ((0.9, 0.1), (0.1, 0.9))
+    initial_probabilities: tuple[float, ...] = (0.5, 0.5)
+    output_rate_hz: float = 10.0
+    accel_sigma_mps2: float = 0.1
+    gyro_sigma_radps: float = 0.2 * _DEG
+    ca_accel_noise_mps2: float = 0.3
+    ca_yaw_accel_noise_radps2: float = 0.3
+    ct_accel_noise_mps2: float = 0.5
+    wheel_sigma_mps: float = 0.1
+    compass_sigma_rad: float = 2.0 * _DEG
+    rfid_sigma_floor_m: float = 0.5
+    lms: LmsFederatedConfig = field(default_factory=LmsFederatedConfig)
+
+    def __post_init__(self) -> None:
+        unknown = [m for m in self.models if m not in _MODELS]
+        if not self.models or unknown:
+            raise ConfigError(f"song2014 models must be chosen from {_MODELS}, got {self.models}")
+        if len(self.models) > 1:
+            try:
+                pi = imm.validate_markov(np.array(self.markov))
+            except ValueError as exc:
+                raise ConfigError(str(exc)) from None
+            p0 = np.asarray(self.initial_probabilities, dtype=np.float64)
+            if pi.shape[0] != len(self.models) or p0.size != len(self.models) or not np.isclose(p0.sum(), 1.0):
+                raise ConfigError("markov and initial_probabilities must match the number of models and sum to 1")
+        if self.output_rate_hz <= 0:
+            raise ConfigError("output_rate_hz must be positive")
+
+
+class _Epoch:
+    """Sensor data gathered during one output interval."""
+
+    def __init__(self) -> None:
+        self.imu_sum = np.zeros(3)
+        self.imu_n = 0
+        self.wheel_sum = 0.0
+        self.wheel_n = 0
+        self.yaw: float | None = None
+
+    def add(self, m: Measurement) -> None:
+        v = m.values
+        if m.channel == "imu":
+            self.imu_sum += (v["accel_x_mps2"], v["accel_y_mps2"], v["yaw_rate_radps"])
+            self.imu_n += 1
+        elif m.channel == "wheel":
+            self.wheel_sum += v["speed_mps"]
+            self.wheel_n += 1
+        elif m.channel == "compass":
+            self.yaw = v["yaw_rad"]
+
+
+class Song2014Fusion(Estimator):
+    """The song2014 fusion filter; subclasses fix the model set and fading."""
+
+    required_channels = ("rfid", "imu", "wheel", "compass")
+
+    def check(self, drive: Drive) -> None:
+        super().check(drive)
+        if not drive.has_accelerometers:
+            raise MissingChannelError(f"{self.name} needs accelerometer readings (imu accel_x/y), which drive '{drive.name}' lacks")
+
+    # -- online -------------------------------------------------------------
+    def start(self, drive: Drive) -> None:
+        cfg = self.config
+        self._positioner, self._reading = make_positioner(cfg.lms, drive, self.range_model)
+        self._dt = 1.0 / cfg.output_rate_hz
+        self._epoch_end: float | None = None
+        self._epoch = _Epoch()
+        self._fix: Fix | None = None
+        self._last_input = np.zeros(3)
+        self._states: list[np.ndarray] | None = None
+        self._covs: list[np.ndarray] = []
+        n = len(cfg.models)
+        self._memories = [FadingMemory(4) for _ in range(n)]
+        self._mu = np.asarray(cfg.initial_probabilities[:n] if n > 1 else (1.0,), dtype=np.float64)
+        self._markov = np.asarray(cfg.markov, dtype=np.float64) if n > 1 else np.ones((1, 1))
+        self._rows: list[OutputRow] = []
+        self._mu_log: list[list[float]] = []
+        self._fading_log: list[float] = []
+        self._fixes_used = 0
+
+    def process(self, measurement: Measurement) -> list[OutputRow]:
+        t = measurement.arrival_s
+        if self._epoch_end is None:
+            self._epoch_end = math.floor(t / self._dt) * self._dt + self._dt
+        out: list[OutputRow] = []
+        while t > self._epoch_end + 1e-9:
+            row = self._close_epoch(self._epoch_end)
+            if row is not None:
+                out.append(row)
+            self._epoch_end += self._dt
+        if measurement.channel == "rfid":
+            fix = self._positioner.add(measurement.t_s, *self._reading(measurement))
+            if fix is not None:
+                self._fix = fix
+        else:
+            self._epoch.add(measurement)
+        return out
+
+    def finish(self) -> Estimate:
+        if self._epoch_end is not None:
+            self._close_epoch(self._epoch_end)
+        mu = np.array(self._mu_log) if self._mu_log else np.zeros((0, len(self.config.models)))
+        diagnostics = {
+            "models": list(self.config.models),
+            "fixes_used": self._fixes_used,
+            "fading_factor_mean": float(np.mean(self._fading_log)) if self._fading_log else 1.0,
+            "fading_factor_max": float(np.max(self._fading_log)) if self._fading_log else 1.0,
+        }
+        if len(self.config.models) > 1:
+            diagnostics["model_probabilities"] = {
+                "t_s": [r.t_s for r in self._rows],
+                **{f"{name}_{i}" if self.config.models.count(name) > 1 else name: mu[:, i].tolist() for i, name in enumerate(self.config.models)},
+            }
+        return Estimate.from_rows(self.name, self._rows, rate_hz=self.config.output_rate_hz, diagnostics=diagnostics)
+
+    # -- one epoch ------------------------------------------------------------
+    def _close_epoch(self, t_s: float) -> OutputRow | None:
+        fix = self._positioner.advance(t_s)
+        if fix is not None:
+            self._fix = fix
+        epoch, self._epoch = self._epoch, _Epoch()
+        if epoch.imu_n:
+            self._last_input = epoch.imu_sum / epoch.imu_n
+        if self._states is None and not self._initialise(t_s, epoch):
+            return None
+        if self._states is not None and self._t_state < t_s:
+            self._step(t_s, epoch)
+        x, P = self._combined()
+        row = OutputRow(t_s, float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), P[:2, :2].copy())
+        self._rows.append(row)
+        self._mu_log.append(self._mu.tolist())
+        return row
+
+    def _initialise(self, t_s: float, epoch: _Epoch) -> bool:
+        cfg = self.config
+        if self._fix is None or epoch.yaw is None or epoch.wheel_n == 0:
+            return False
+        fix, self._fix = self._fix, None
+        yaw = wrap_angle(float(epoch.yaw))
+        speed = epoch.wheel_sum / epoch.wheel_n
+        lag = t_s - fix.t_s
+        v = speed * np.array([math.cos(yaw), math.sin(yaw)])
+        x = np.array([fix.east_m + v[0] * lag, fix.north_m + v[1] * lag, v[0], v[1], yaw, self._last_input[2]])
+        pos_var = max(float(np.max(np.linalg.eigvalsh(fix.cov_en_m2))), cfg.rfid_sigma_floor_m**2)
+        P = np.diag([pos_var, pos_var, 0.5**2, 0.5**2, cfg.compass_sigma_rad**2, (5 * _DEG) ** 2])
+        n = len(cfg.models)
+        self._states = [x.copy() for _ in range(n)]
+        self._covs = [P.copy() for _ in range(n)]
+        self._t_state = t_s
+        self._fixes_used += 1
+        return True
+
+    def _step(self, t_s: float, epoch: _Epoch) -> None:
+        cfg = self.config
+        T = t_s - self._t_state
+        self._t_state = t_s
+        rows, z, R = self._observation(t_s, epoch)
+        n = len(cfg.models)
+        if n > 1:
+            states, covs, predicted = imm.mix(self._states, self._covs, self._mu, self._markov, (km.PSI,))
+        else:
+            states, covs, predicted = self._states, self._covs, self._mu
+        new_states, new_covs, lls = [], [], []
+        for i, name in enumerate(cfg.models):
+            x_pred, A, Q = self._predict(name, states[i], T)
+            z_pred, H = km.position_speed_yaw_observation(x_pred, rows)
+            if rows.size:
+                s = stekf.step(x_pred, A, covs[i], Q, z, z_pred, H, R, rows, self._memories[i], cfg.fading, self._residual(rows))
+                x_new, P_new = s.x, s.P
+                lls.append(imm.log_likelihood(s.innovation, s.innovation_cov))
+                self._fading_log.append(s.fading)
+            else:
+                x_new, P_new = x_pred, A @ covs[i] @ A.T + Q
+                lls.append(0.0)
+            x_new[km.PSI] = wrap_angle(float(x_new[km.PSI]))
+            new_states.append(x_new)
+            new_covs.append(P_new)
+        self._states, self._covs = new_states, new_covs
+        if n > 1:
+            self._mu = imm.update_probabilities(predicted, lls)
+
+    def _predict(self, name: str, x: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``f(x, u)``, ``A`` and the noise ``B Gamma B^T + Q`` of one model."""
+        cfg = self.config
+        u = self._last_input
+        x_ca, A_ca, B_ca = km.ca_transition(x, u[:2], T)
+        if name == "ca":
+            var_a = cfg.accel_sigma_mps2**2 + cfg.ca_accel_noise_mps2**2
+            Q = var_a * (B_ca @ B_ca.T)
+            Q[km.OMEGA, km.OMEGA] += cfg.ca_yaw_accel_noise_radps2**2 * T
+            return x_ca, A_ca, Q
+        x_ct, A_ct, B_ct = km.ct_transition(x, u[2:], T)
+        Q = cfg.ct_accel_noise_mps2**2 * (B_ca @ B_ca.T) + cfg.gyro_sigma_radps**2 * (B_ct @ B_ct.T)
+        return x_ct, A_ct, Q
+
+    def _observation(self, t_s: float, epoch: _Epoch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        cfg = self.config
+        rows: list[int] = []
+        z: list[float] = []
+        R = np.zeros((4, 4))
+        if self._fix is not None:
+            fix, self._fix = self._fix, None
+            x, _ = self._combined()
+            lag = t_s - fix.t_s
+            rows += [km.OBS_POSITION_E, km.OBS_POSITION_N]
+            z += [fix.east_m + x[km.VE] * lag, fix.north_m + x[km.VN] * lag]
+            w, V = np.linalg.eigh(fix.cov_en_m2)
+            R[:2, :2] = (V * np.maximum(w, cfg.rfid_sigma_floor_m**2)) @ V.T
+            self._fixes_used += 1
+        if epoch.wheel_n:
+            rows.append(km.OBS_SPEED)
+            z.append(epoch.wheel_sum / epoch.wheel_n)
+            R[2, 2] = cfg.wheel_sigma_mps**2
+        if epoch.yaw is not None:
+            rows.append(km.OBS_YAW)
+            z.append(float(epoch.yaw))
+            R[3, 3] = cfg.compass_sigma_rad**2
+        idx = np.array(rows, dtype=np.int64)
+        return idx, np.array(z), R[np.ix_(idx, idx)]
+
+    @staticmethod
+    def _residual(rows: np.ndarray):
+        yaw = np.flatnonzero(rows == km.OBS_YAW)
+
+        def residual(z: np.ndarray, z_pred: np.ndarray) -> np.ndarray:
+            d = z - z_pred
+            d[yaw] = angle_residual(z[yaw], z_pred[yaw])
+            return d
+
+        return residual
+
+    def _combined(self) -> tuple[np.ndarray, np.ndarray]:
+        if len(self._states) == 1:
+            return self._states[0], self._covs[0]
+        return imm.combine(self._states, self._covs, self._mu, (km.PSI,))
+
+
+class EkfCa(Song2014Fusion):
+    """song2014 Table 5 "EKF": single CA model, no fading."""
+
+    name = "ekf-ca"
+    summary = "song2014 EKF with the CA model on LMS-federated fixes + wheel speed + compass (10 Hz)"
+
+    @classmethod
+    def default_config(cls) -> Song2014Config:
+        return Song2014Config(models=("ca",), fading=FadingConfig(enabled=False))
+
+
+class StekfCa(Song2014Fusion):
+    """song2014 Table 5 "STEKF": single CA model with strong tracking."""
+
+    name = "stekf-ca"
+    summary = "song2014 strong-tracking EKF with the CA model on LMS-federated fixes + wheel + compass (10 Hz)"
+
+    @classmethod
+    def default_config(cls) -> Song2014Config:
+        return Song2014Config(models=("ca",))
+
+
+class ImmStekf(Song2014Fusion):
+    """song2014 Table 5 "IMM": CA and CT model-matched STEKFs in an IMM."""
+
+    name = "imm-stekf"
+    summary = "song2014 IMM of CA and CT strong-tracking EKFs on LMS-federated fixes + wheel + compass (10 Hz)"
+
+    @classmethod
+    def default_config(cls) -> Song2014Config:
+        return Song2014Config(models=("ca", "ct"))
+
+
+ESTIMATORS = {c.name: c for c in (EkfCa, StekfCa, ImmStekf)}
