@@ -1,0 +1,400 @@
+"""Turns a measurement stream into keyframes and GTSAM factors.
+
+Keyframes are laid on a regular grid ``t_k = t_0 + k / rate`` starting at the
+first measurement. Keyframe ``k`` is closed when a measurement arrives after
+``t_k``: the wheel/gyro (and IMU) samples up to ``t_k`` are preintegrated into
+the odometry factors between ``k - 1`` and ``k``. Every absolute measurement
+(tag/RSU range, RSU/GNSS fix, compass yaw) is attached to the keyframe
+nearest its own timestamp ``t_s`` — also when it arrives late: a reading for
+a keyframe already in the graph goes into the next update, up to
+``max_delay_s`` late (issue 6, item 4).
+
+Start-up: until the first absolute information (a fix or a tag range),
+nothing constrains the position, so keyframes are held back (their output is
+dead reckoning from the origin, or from ``config.initial_pose``). The first
+absolute reading anchors the trajectory: the held keyframes are shifted so
+the anchoring keyframe sits at the fix, or at the tags' centroid (offset by
+the range from a single wall tag), and released to the smoother with a weak
+prior on the first keyframe, which keeps the system determinate when a
+single range cannot fix the position (never IndeterminantLinearSystem).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import L, R
+
+from graphpos.drive import Channel, Drive, Measurement
+from graphpos.graph.config import GraphConfig
+from graphpos.graph.models import KeyframeState, robust
+from graphpos.graph.odometry import PlanarOdometry
+
+#: 1-sigma of the first keyframe's position prior once anchored by ranges
+#: or fixes: weak, only there to keep the system determinate.
+WEAK_POSITION_SIGMA_M = 100.0
+#: Yaw sigma at start-up when neither an initial pose nor a compass gives it.
+UNKNOWN_YAW_SIGMA_RAD = math.pi
+
+
+@dataclass
+class Increment:
+    """What one closed keyframe adds to the smoother."""
+
+    keyframe: int
+    t_s: float
+    factors: gtsam.NonlinearFactorGraph = field(default_factory=gtsam.NonlinearFactorGraph)
+    values: gtsam.Values = field(default_factory=gtsam.Values)
+    timestamps: dict[int, float] = field(default_factory=dict)
+    released: list[int] = field(default_factory=list)  # keyframes entering the smoother now
+
+
+@dataclass
+class RangeRecord:
+    """A range factor's ingredients, kept to rebuild it with another range scale."""
+
+    keyframe: int
+    landmark_key: int
+    reading_m: float
+    sigma_m: float
+
+
+class GraphBuilder:
+    """Keyframes and factors from measurements in arrival order.
+
+    Parameters
+    ----------
+    config : GraphConfig
+    model : PlanarModel or InertialModel
+    drive : Drive
+        Maps only (tags, RSUs).
+    range_model : RangeModel
+        RFID reading -> distance and sigma.
+    max_delay_s : float
+        Latest arrival accepted for a reading of an existing keyframe.
+    landmark_lifetime_s : float
+        A landmark key unused for longer gets a fresh key (fixed-lag
+        smoothers marginalise old keys; a key cannot come back).
+    keep_history : bool
+        Keep every factor (for batch solves and range-scale estimation).
+    range_scale : float
+        Readings are divided by this scale (``reading = scale * distance``).
+    """
+
+    def __init__(
+        self,
+        config: GraphConfig,
+        model,
+        drive: Drive,
+        range_model,
+        max_delay_s: float,
+        landmark_lifetime_s: float = math.inf,
+        keep_history: bool = True,
+        range_scale: float = 1.0,
+    ):
+        self.config = config
+        self.model = model
+        self.range_model = range_model
+        self.max_delay_s = max_delay_s
+        self.landmark_lifetime_s = landmark_lifetime_s
+        self.keep_history = keep_history
+        self.range_scale = range_scale
+        self.period_s = 1.0 / config.keyframe_rate_hz
+        self.tags = {int(i): (float(e), float(n), int(w)) for i, e, n, w in zip(drive.tags.tag_id, drive.tags.east_m, drive.tags.north_m, drive.tags.wall_side)}
+        self.rsus = {int(i): (float(e), float(n)) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
+        c = config
+        self.odometry = PlanarOdometry(
+            speed_density=c.wheel_speed_sigma_mps / math.sqrt(c.wheel_rate_hz),
+            yaw_rate_density=c.gyro_sigma_radps / math.sqrt(c.imu_rate_hz),
+            slip_density=c.lateral_slip_sigma_mps / math.sqrt(c.wheel_rate_hz),
+            heading_drift_sigma_radps=c.heading_drift_sigma_radps,
+            has_speed=drive.has("wheel"),
+            has_yaw_rate=drive.has("imu"),
+        )
+        self.has_compass = drive.has("compass")
+        self.pim = model.new_preintegration(None)
+        self._imu_held: tuple[np.ndarray, np.ndarray] | None = None
+        self._imu_t: float | None = None
+        self.t0: float | None = None
+        self.last_keyframe = -1
+        self.states: dict[int, KeyframeState] = {}
+        self.speeds: dict[int, float] = {}
+        self._waiting: dict[int, list[tuple]] = {}  # readings for keyframes not closed yet
+        self._ready: list[tuple[int, tuple]] = []  # readings for closed keyframes, next update
+        self._landmarks: dict[tuple[str, int], tuple[int, float]] = {}
+        self._landmark_count = 0
+        self.anchored = config.initial_pose is not None
+        self._backlog: list[Increment] = []
+        self._backlog_landmarks: dict[int, np.ndarray] = {}
+        self._first_yaw: float | None = None
+        # history for batch solves / scale estimation
+        self.fixed_factors = gtsam.NonlinearFactorGraph()
+        self.range_records: list[RangeRecord] = []
+        self.diagnostics = {"late_attached": 0, "late_dropped": 0, "ranges": 0, "anchor_keyframe": None}
+
+    # -- time grid ----------------------------------------------------------
+    def keyframe_time(self, k: int) -> float:
+        return self.t0 + k * self.period_s
+
+    def _nearest_keyframe(self, t_s: float) -> int:
+        return int(math.floor((t_s - self.t0) / self.period_s + 0.5))
+
+    # -- input ----------------------------------------------------------------
+    def add(self, m: Measurement) -> list[Increment]:
+        """Take one measurement; return the keyframes it closes."""
+        if self.t0 is None:
+            self.t0 = m.t_s
+            self.odometry.start(m.t_s)
+            self._imu_t = m.t_s
+        closed = []
+        arrival = m.arrival_s
+        while self.keyframe_time(self.last_keyframe + 1) < arrival - 1e-9:
+            closed.append(self._close(self.last_keyframe + 1, arrival))
+        self._take(m, arrival)
+        return closed
+
+    def flush(self, end_s: float | None = None) -> list[Increment]:
+        """Close the keyframes up to ``end_s`` (default: the last waiting reading) and release any backlog."""
+        closed = []
+        last = max(self._waiting, default=self.last_keyframe)
+        if end_s is not None:
+            last = max(last, self._nearest_keyframe(end_s))
+        while self.last_keyframe < last or self._ready:
+            k = self.last_keyframe + 1
+            closed.append(self._close(k, self.keyframe_time(k) + 1e-6))
+        if not self.anchored and self._backlog:
+            closed.append(self._release(closed[-1] if closed else None))
+        return closed
+
+    def _take(self, m: Measurement, arrival: float) -> None:
+        v = m.values
+        ch = m.channel
+        if ch == "imu":
+            self.odometry.advance(m.t_s)
+            self.odometry.set_yaw_rate(v["yaw_rate_radps"])
+            if self.pim is not None:
+                self._integrate_imu(m.t_s)
+                self._imu_held = (
+                    np.array([v["accel_x_mps2"], v["accel_y_mps2"], 9.81]),
+                    np.array([0.0, 0.0, v["yaw_rate_radps"]]),
+                )
+            return
+        if ch == "wheel":
+            self.odometry.advance(m.t_s)
+            self.odometry.set_speed(v["speed_mps"])
+            return
+        if ch == "rfid":
+            reading = Channel("rfid", {k: [x] for k, x in v.items()}, validate=False)
+            d, s = self.range_model.ranges(reading)
+            if not (np.isfinite(d[0]) and np.isfinite(s[0]) and s[0] > 0):
+                return
+            entry = ("range", ("tag", int(v["tag_id"])), float(d[0]), float(s[0]))
+        elif ch == "rsu":
+            rid = int(v["rsu_id"])
+            if np.isfinite(v.get("range_m", np.nan)):
+                entry = ("range", ("rsu", rid), float(v["range_m"]), float(v["sigma_m"]))
+            else:
+                entry = ("fix", float(v["east_m"]), float(v["north_m"]), float(v["sigma_m"]))
+        elif ch == "gnss":
+            entry = ("fix", float(v["east_m"]), float(v["north_m"]), float(v["sigma_m"]))
+        elif ch == "compass":
+            entry = ("compass", float(v["yaw_rad"]))
+            if self._first_yaw is None:
+                self._first_yaw = entry[1]
+        else:
+            return
+        k = max(self._nearest_keyframe(m.t_s), 0)
+        if k > self.last_keyframe:
+            self._waiting.setdefault(k, []).append(entry)
+        elif arrival - self.keyframe_time(k) <= self.max_delay_s + 0.5 * self.period_s and self._keyframe_alive(k):
+            self._ready.append((k, entry))
+            self.diagnostics["late_attached"] += 1
+        else:
+            self.diagnostics["late_dropped"] += 1
+
+    def _keyframe_alive(self, k: int) -> bool:
+        return k in self.states
+
+    def _integrate_imu(self, t_s: float) -> None:
+        dt = t_s - self._imu_t
+        if self._imu_held is not None and dt > 0:
+            self.pim.integrateMeasurement(self._imu_held[0], self._imu_held[1], dt)
+        if dt > 0 or self._imu_held is None:
+            self._imu_t = t_s
+
+    # -- keyframes ------------------------------------------------------------
+    def _initial_state(self) -> KeyframeState:
+        if self.config.initial_pose is not None:
+            e, n, yaw = self.config.initial_pose
+            return KeyframeState(float(e), float(n), float(yaw))
+        yaw = self._first_yaw if self._first_yaw is not None else 0.0
+        return KeyframeState(0.0, 0.0, yaw)
+
+    def _close(self, k: int, arrival: float) -> Increment:
+        t_k = self.keyframe_time(k)
+        inc = Increment(k, t_k)
+        delta = self.odometry.cut(t_k)
+        if self.pim is not None:
+            self._integrate_imu(t_k)
+        entries = self._waiting.pop(k, [])
+        if k == 0:
+            for e in entries:
+                if e[0] == "compass" and self._first_yaw is None:
+                    self._first_yaw = e[1]
+            state = self._initial_state()
+            if self.anchored:
+                c = self.config
+                self._add(inc, self.model.prior_factors(0, state, c.initial_position_sigma_m, c.initial_yaw_sigma_rad))
+        else:
+            state = self.model.predict(self.states[k - 1], delta, self.pim)
+            self._add(inc, self.model.odometry_factors(k, delta, self.pim))
+        self.states[k] = state
+        self.speeds[k] = delta.mean_speed_mps
+        self.model.insert_values(inc.values, k, state)
+        for key in self.model.keyframe_keys(k):
+            inc.timestamps[key] = t_k
+        self._add(inc, self.model.keyframe_factors(k, state))
+        if self.pim is not None:
+            self.pim = self.model.new_preintegration(state.bias)
+        self.last_keyframe = k
+        ready = [(k, e) for e in entries] + self._ready
+        self._ready = []
+        if not self.anchored:
+            anchor = self._anchor_offset(ready)
+            if anchor is None:
+                self._backlog.append(inc)
+                self._attach(inc, ready)
+                inc.released = []
+                self._prune(k)
+                return inc
+            self._shift(anchor)
+            self._backlog.append(inc)
+            self._attach(inc, ready)
+            return self._release(inc)
+        self._attach(inc, ready)
+        inc.released = [k]
+        self._prune(k)
+        return inc
+
+    def _prune(self, k: int) -> None:
+        """Forget states no late reading can refer to (fixed-lag memory stays flat)."""
+        if self.keep_history or not self.anchored:
+            return
+        old = k - int(math.ceil((self.max_delay_s + 1.0) / self.period_s)) - 1
+        self.states.pop(old, None)
+        self.speeds.pop(old, None)
+
+    def _add(self, inc: Increment, factors: list) -> None:
+        for f in factors:
+            inc.factors.add(f)
+            if self.keep_history:
+                self.fixed_factors.add(f)
+
+    # -- absolute measurements ------------------------------------------------
+    def _attach(self, inc: Increment, ready: list[tuple[int, tuple]]) -> None:
+        c = self.config
+        for k, entry in ready:
+            kind = entry[0]
+            if kind == "compass":
+                self._add(inc, [self.model.compass_factor(k, entry[1], c.compass_sigma_rad)])
+            elif kind == "fix":
+                _, e, n, s = entry
+                dim = self.model.fix_dim()
+                sig = np.array([s, s, 1e3]) if dim == 3 else s
+                self._add(inc, [self.model.fix_factor(k, e, n, robust(sig, c, dim))])
+            else:
+                _, which, reading, sigma = entry
+                key = self._landmark_key(inc, which, k)
+                if self.keep_history:
+                    self.range_records.append(RangeRecord(k, key, reading, sigma))
+                noise = robust(sigma / self.range_scale, c)
+                inc.factors.add(self.model.range_factor(k, key, reading / self.range_scale, noise))
+                self.diagnostics["ranges"] += 1
+
+    def range_factor(self, record: RangeRecord, scale: float):
+        """Rebuild a recorded range factor for another range scale."""
+        noise = robust(record.sigma_m / scale, self.config)
+        return self.model.range_factor(record.keyframe, record.landmark_key, record.reading_m / scale, noise)
+
+    def graph(self, scale: float | None = None) -> gtsam.NonlinearFactorGraph:
+        """Every factor so far (``keep_history``), ranges built with ``scale``."""
+        scale = self.range_scale if scale is None else scale
+        g = gtsam.NonlinearFactorGraph(self.fixed_factors)
+        for r in self.range_records:
+            g.add(self.range_factor(r, scale))
+        return g
+
+    def _landmark_key(self, inc: Increment, which: tuple[str, int], k: int) -> int:
+        t_k = inc.t_s
+        known = self._landmarks.get(which)
+        if known is not None and t_k - known[1] <= self.landmark_lifetime_s:
+            key = known[0]
+        else:
+            self._landmark_count += 1
+            key = (L if which[0] == "tag" else R)(self._landmark_count)
+            e, n = self.tags[which[1]][:2] if which[0] == "tag" else self.rsus[which[1]]
+            factors, point = self.model.landmark(key, e, n)
+            self._add(inc, factors)
+            inc.values.insert(key, point)
+            if not self.anchored:
+                self._backlog_landmarks[key] = point
+        self._landmarks[which] = (key, t_k)
+        inc.timestamps[key] = t_k
+        return key
+
+    # -- start-up anchoring --------------------------------------------------
+    def _anchor_offset(self, ready: list[tuple[int, tuple]]) -> tuple[float, float] | None:
+        """East/north shift that puts the dead-reckoned track on the first absolute reading."""
+        fixes = [(k, e) for k, e in ready if e[0] == "fix"]
+        if fixes:
+            k, (_, e, n, _) = fixes[0]
+            s = self.states[k]
+            return e - s.east_m, n - s.north_m
+        ranges = [(k, e) for k, e in ready if e[0] == "range"]
+        if not ranges:
+            return None
+        k = ranges[0][0]
+        at_k = [e for kk, e in ranges if kk == k]
+        pts = np.array([self._landmark_position(e[1]) for e in at_k])
+        s = self.states[k]
+        if len(at_k) == 1:
+            _, which, reading, _ = at_k[0]
+            side = self.tags[which[1]][2] if which[0] == "tag" else 0
+            # a tag on the left wall (+1) is left of the vehicle: the vehicle is
+            # the range away to the tag's right, seen along the heading
+            direction = -side * np.array([-math.sin(s.yaw_rad), math.cos(s.yaw_rad)]) if side else np.array([math.cos(s.yaw_rad), math.sin(s.yaw_rad)])
+            guess = pts[0] + reading / self.range_scale * direction
+        else:
+            guess = pts.mean(axis=0)
+        self.diagnostics["anchor_keyframe"] = k
+        return float(guess[0] - s.east_m), float(guess[1] - s.north_m)
+
+    def _landmark_position(self, which: tuple[str, int]) -> tuple[float, float]:
+        return self.tags[which[1]][:2] if which[0] == "tag" else self.rsus[which[1]]
+
+    def _shift(self, offset: tuple[float, float]) -> None:
+        de, dn = offset
+        for k in list(self.states):
+            self.states[k] = self.states[k].shifted(de, dn)
+
+    def _release(self, last: Increment | None) -> Increment:
+        """All held keyframes as one increment, shifted, with the weak start prior."""
+        merged = Increment(last.keyframe if last else self.last_keyframe, last.t_s if last else 0.0)
+        for inc in self._backlog:
+            merged.factors.push_back(inc.factors)
+            merged.timestamps.update(inc.timestamps)
+            merged.released.append(inc.keyframe)
+        for k in merged.released:
+            self.model.insert_values(merged.values, k, self.states[k])
+        for key, point in self._backlog_landmarks.items():
+            merged.values.insert(key, point)
+        yaw_sigma = self.config.compass_sigma_rad * 3 if self._first_yaw is not None else UNKNOWN_YAW_SIGMA_RAD
+        priors = self.model.prior_factors(merged.released[0], self.states[merged.released[0]], WEAK_POSITION_SIGMA_M, yaw_sigma)
+        self._add(merged, priors)
+        self._backlog = []
+        self._backlog_landmarks = {}
+        self.anchored = True
+        return merged

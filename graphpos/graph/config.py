@@ -1,0 +1,133 @@
+"""Configuration of the factor-graph estimators.
+
+Every tunable of the graph backend lives here, with its unit in its name.
+Sensor noise defaults are song2016 §6 (IMU 1-sigma 0.1 m/s^2 and 0.2 deg/s
+at 100 Hz); the paper gives no wheel-speed or compass figure, so those are
+typical automotive values, documented beside each field.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields
+
+from graphpos.errors import ConfigError
+
+PARAMETERISATIONS = ("auto", "planar", "inertial")
+ROBUST_LOSSES = ("huber", "cauchy", "none")
+RANGE_SCALE_MODES = ("off", "estimate")
+
+
+@dataclass
+class GraphConfig:
+    """Tunables of the GTSAM estimators (``graph-batch``, ``graph-isam2``, ``graph-fixed-lag``).
+
+    Parameters
+    ----------
+    keyframe_rate_hz : float
+        Keyframes (= output epochs) per second.
+    parameterisation : {"auto", "planar", "inertial"}
+        ``planar``: Pose2 keyframes, wheel + gyro preintegrated into relative
+        poses. ``inertial``: Pose3 + velocity + IMU bias with GTSAM's
+        combined IMU preintegration. ``auto``: inertial when the drive has
+        accelerometers, planar otherwise.
+    robust_loss : {"huber", "cauchy", "none"}
+        M-estimator on range, RSU and GNSS factors.
+    robust_k : float
+        The M-estimator's threshold, in units of the measurement's sigma.
+    accel_sigma_mps2, gyro_sigma_radps : float
+        Per-sample 1-sigma of the accelerometers and the yaw gyro at
+        ``imu_rate_hz`` (song2016 §6: 0.1 m/s^2, 0.2 deg/s).
+    imu_rate_hz : float
+        Nominal IMU rate, to turn per-sample sigmas into noise densities.
+    accel_bias_sigma_mps2, gyro_bias_sigma_radps : float
+        Prior 1-sigma of the turn-on biases.
+    accel_bias_walk_mps2_per_sqrt_s, gyro_bias_walk_radps_per_sqrt_s : float
+        Bias random walks (inertial graph).
+    wheel_speed_sigma_mps : float
+        Per-sample 1-sigma of the wheel speed (no figure in the papers).
+    wheel_rate_hz : float
+        Nominal wheel-speed rate (per-sample sigma -> density).
+    lateral_slip_sigma_mps : float
+        1-sigma of the body's lateral (and vertical) velocity: the
+        non-holonomic constraint of the wheel odometry factor.
+    heading_drift_sigma_radps : float
+        Extra heading uncertainty per second of the wheel + gyro odometry
+        (an unmodelled gyro bias in the planar graph).
+    compass_sigma_rad : float
+        1-sigma of a compass yaw (no figure in the papers; 2 degrees).
+    initial_pose : tuple (east_m, north_m, yaw_rad) or None
+        A given start pose. None: start from the first absolute information
+        (a GNSS/RSU fix or the first tag ranges) and the first compass yaw.
+    initial_position_sigma_m, initial_yaw_sigma_rad : float
+        1-sigma of the start-up prior.
+    max_delay_s : float
+        A range/RSU reading arriving up to this late is attached to the
+        keyframe of its own timestamp; later ones are dropped (counted).
+    fixed_lag_s : float
+        Smoother lag of ``graph-fixed-lag``.
+    final : bool
+        ``graph-isam2`` only: return the smoothed trajectory at the end
+        instead of the causal one.
+    output_covariance : bool
+        Compute the east/north covariance of each output.
+    range_scale : {"off", "estimate"}
+        ``estimate``: self-calibrate a common range scale
+        (``reading = scale * distance``) in an outer loop
+        (:mod:`graphpos.graph.calibration`).
+    range_scale_bounds : tuple of float
+        Search interval of the scale.
+    batch_max_iterations : int
+        Levenberg-Marquardt iteration limit of ``graph-batch``.
+    """
+
+    keyframe_rate_hz: float = 10.0
+    parameterisation: str = "auto"
+    robust_loss: str = "huber"
+    robust_k: float = 1.345
+    accel_sigma_mps2: float = 0.1
+    gyro_sigma_radps: float = math.radians(0.2)
+    imu_rate_hz: float = 100.0
+    accel_bias_sigma_mps2: float = 0.1
+    gyro_bias_sigma_radps: float = math.radians(0.5)
+    accel_bias_walk_mps2_per_sqrt_s: float = 1e-3
+    gyro_bias_walk_radps_per_sqrt_s: float = 1e-4
+    wheel_speed_sigma_mps: float = 0.1
+    wheel_rate_hz: float = 100.0
+    lateral_slip_sigma_mps: float = 0.05
+    heading_drift_sigma_radps: float = math.radians(0.2)
+    compass_sigma_rad: float = math.radians(2.0)
+    initial_pose: tuple[float, float, float] | None = None
+    initial_position_sigma_m: float = 1.0
+    initial_yaw_sigma_rad: float = math.radians(5.0)
+    max_delay_s: float = 3.0
+    fixed_lag_s: float = 10.0
+    final: bool = False
+    output_covariance: bool = True
+    range_scale: str = "off"
+    range_scale_bounds: tuple[float, float] = (0.8, 1.25)
+    batch_max_iterations: int = 100
+
+    def __post_init__(self) -> None:
+        if self.parameterisation not in PARAMETERISATIONS:
+            raise ConfigError(f"parameterisation must be one of {PARAMETERISATIONS}, got {self.parameterisation!r}")
+        if self.robust_loss not in ROBUST_LOSSES:
+            raise ConfigError(f"robust_loss must be one of {ROBUST_LOSSES}, got {self.robust_loss!r}")
+        if self.range_scale not in RANGE_SCALE_MODES:
+            raise ConfigError(f"range_scale must be one of {RANGE_SCALE_MODES}, got {self.range_scale!r}")
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if isinstance(value, float) and not (math.isfinite(value) and value > 0) and f.name != "max_delay_s":
+                raise ConfigError(f"{f.name} must be a positive finite number, got {value}")
+        if not (math.isfinite(self.max_delay_s) and self.max_delay_s >= 0):
+            raise ConfigError(f"max_delay_s must be >= 0, got {self.max_delay_s}")
+        if self.fixed_lag_s <= self.max_delay_s + 2.0 / self.keyframe_rate_hz:
+            raise ConfigError(
+                f"fixed_lag_s ({self.fixed_lag_s}) must exceed max_delay_s ({self.max_delay_s}) by at least two keyframes, "
+                "or late readings would refer to keyframes already marginalised"
+            )
+        lo, hi = self.range_scale_bounds
+        if not (0 < lo < 1 < hi):
+            raise ConfigError(f"range_scale_bounds must bracket 1, got {self.range_scale_bounds}")
+        if self.initial_pose is not None and len(self.initial_pose) != 3:
+            raise ConfigError("initial_pose must be (east_m, north_m, yaw_rad)")

@@ -1,0 +1,252 @@
+"""The factor-graph estimators: ``graph-isam2``, ``graph-fixed-lag``, ``graph-batch``.
+
+All three share the keyframe/factor builder (:mod:`graphpos.graph.builder`)
+and the Estimator contract: ``run(drive)`` is ``start`` + ``process`` of every
+measurement in arrival order + ``finish``.
+
+- ``graph-isam2``: one iSAM2 update per keyframe with that keyframe's new
+  factors and values only; the output row of keyframe ``k`` is the estimate
+  right after its update, i.e. from data received up to ``t_k`` (causal).
+  ``config.final`` returns the smoothed trajectory of the whole drive instead.
+- ``graph-fixed-lag``: the same with GTSAM's IncrementalFixedLagSmoother
+  (``config.fixed_lag_s``); per-update cost and memory stay flat.
+- ``graph-batch``: Levenberg–Marquardt over the whole drive, initialised
+  from the iSAM2 pass, with marginal covariances of every output position;
+  ``config.range_scale = "estimate"`` self-calibrates the range scale
+  (:mod:`graphpos.graph.calibration`).
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import gtsam
+import numpy as np
+
+from graphpos.drive import Drive, Measurement
+from graphpos.errors import ConfigError, EstimationError, MissingChannelError
+from graphpos.estimate import Estimate, OutputRow
+from graphpos.estimator import Estimator
+from graphpos.graph.builder import WEAK_POSITION_SIGMA_M, GraphBuilder, Increment
+from graphpos.graph.config import GraphConfig
+from graphpos.graph.models import KeyframeState, make_model
+from graphpos.graph.smoothers import FixedLagSmoother, Isam2Smoother, ValuesSource, gtsam_error
+
+#: Extra iSAM2 iterations when the start-up backlog is released (large first step).
+ANCHOR_ITERATIONS = 4
+
+_CHANNELS = ("imu", "wheel", "compass", "rfid", "rsu", "gnss")
+
+
+def default_range_model_for(drive: Drive):
+    """The drive's default RangeModel (ranging helper's :func:`graphpos.ranging.default_range_model`)."""
+    from graphpos.ranging import default_range_model
+
+    return default_range_model(drive)
+
+
+class _GraphEstimator(Estimator):
+    """Shared online machinery: builder + incremental smoother + output rows."""
+
+    optional_channels = _CHANNELS
+
+    @classmethod
+    def default_config(cls) -> GraphConfig:
+        return GraphConfig()
+
+    def __init__(self, config: Any = None, layout: str | None = None, range_model: Any = None):
+        super().__init__(config, layout, range_model)
+        if not isinstance(self.config, GraphConfig):
+            raise ConfigError(f"{self.name} takes a GraphConfig, got {type(self.config).__name__}")
+
+    def check(self, drive: Drive) -> None:
+        super().check(drive)
+        if not (drive.has("wheel") or drive.has("imu")):
+            raise MissingChannelError(f"{self.name} needs wheel speed or an IMU between fixes; drive '{drive.name}' has neither")
+
+    # -- hooks ------------------------------------------------------------------
+    def _make_smoother(self, model_name: str):
+        return Isam2Smoother(model_name)
+
+    def _builder_options(self) -> dict[str, Any]:
+        return {"max_delay_s": self.config.max_delay_s}
+
+    # -- online ---------------------------------------------------------------
+    def start(self, drive: Drive) -> None:
+        model_range = self.range_model
+        if model_range is None and drive.has("rfid"):
+            model_range = default_range_model_for(drive)
+        self.model = make_model(self.config, drive.has_accelerometers)
+        if self.model.name == "inertial" and not drive.has_accelerometers:
+            raise MissingChannelError(f"{self.name}: the inertial graph needs accelerometers; drive '{drive.name}' has none (use parameterisation='planar')")
+        self.builder = GraphBuilder(self.config, self.model, drive, model_range, **self._builder_options())
+        self.smoother = self._make_smoother(self.model.name)
+        self.rows: list[OutputRow] = []
+        self.update_times_s: list[float] = []
+        self._drive_name = drive.name
+
+    def process(self, measurement: Measurement) -> list[OutputRow]:
+        return self._apply(self.builder.add(measurement))
+
+    def _apply(self, increments: list[Increment]) -> list[OutputRow]:
+        out = []
+        for inc in increments:
+            if inc.released:
+                self._update(inc)
+            out.append(self._row(inc.keyframe))
+        self.rows.extend(out)
+        return out
+
+    def _update(self, inc: Increment) -> None:
+        import time
+
+        first = len(inc.released) > 1 or inc.released[0] == 0
+        t = time.perf_counter()
+        try:
+            self.smoother.update(inc.factors, inc.values, inc.timestamps, ANCHOR_ITERATIONS if first else 0)
+        except RuntimeError as exc:
+            raise gtsam_error(exc, f"{self.name} on '{self._drive_name}', keyframe {inc.keyframe} (t = {inc.t_s:.2f} s)") from None
+        k = inc.keyframe
+        self.builder.states[k] = self.model.read(self.smoother.source(), k, self.builder.speeds[k])
+        self.update_times_s.append(time.perf_counter() - t)
+
+    def _row(self, k: int) -> OutputRow:
+        state = self.builder.states[k]
+        cov = None
+        if self.config.output_covariance:
+            if self.builder.anchored:
+                try:
+                    cov = self.model.position_cov(self.smoother.marginal(self.model.pose_key(k)), state)
+                except RuntimeError as exc:
+                    raise gtsam_error(exc, f"{self.name}: marginal covariance of keyframe {k}") from None
+            else:
+                cov = np.eye(2) * WEAK_POSITION_SIGMA_M**2
+        return _output_row(self.builder.keyframe_time(k), state, cov)
+
+    def finish(self) -> Estimate:
+        self._apply(self.builder.flush())
+        return self._estimate(self.rows)
+
+    def _estimate(self, rows: list[OutputRow]) -> Estimate:
+        times = np.asarray(self.update_times_s) if self.update_times_s else np.zeros(1)
+        diagnostics = {
+            **self.builder.diagnostics,
+            "parameterisation": self.model.name,
+            "keyframes": self.builder.last_keyframe + 1,
+            "update_ms_mean": float(times.mean() * 1e3),
+            "update_ms_p95": float(np.percentile(times, 95) * 1e3),
+            "update_ms_max": float(times.max() * 1e3),
+            "range_scale": self.builder.range_scale,
+        }
+        return Estimate.from_rows(self.name, rows, rate_hz=self.config.keyframe_rate_hz, diagnostics=diagnostics)
+
+
+def _output_row(t_s: float, state: KeyframeState, cov: np.ndarray | None) -> OutputRow:
+    return OutputRow(t_s, state.east_m, state.north_m, state.v_east_mps, state.v_north_mps, state.yaw_rad, cov)
+
+
+class GraphIsam2(_GraphEstimator):
+    """Online iSAM2: one update per keyframe, causal output (``final``: smoothed)."""
+
+    name = "graph-isam2"
+    summary = "GTSAM iSAM2 factor graph, one update per 10 Hz keyframe; causal output (final=True: smoothed)"
+
+    def finish(self) -> Estimate:
+        self._apply(self.builder.flush())
+        if not self.config.final:
+            return self._estimate(self.rows)
+        try:
+            self.smoother.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), {}, ANCHOR_ITERATIONS)
+            values = self.smoother.estimate()
+        except RuntimeError as exc:
+            raise gtsam_error(exc, f"{self.name}: final smoothing") from None
+        covs = None
+        if self.config.output_covariance:
+            covs = [self.smoother.marginal(self.model.pose_key(k)) for k in range(self.builder.last_keyframe + 1)]
+        return self._estimate(_rows_from_values(self.model, self.builder, values, covs))
+
+
+def _rows_from_values(model, builder: GraphBuilder, values: gtsam.Values, marginals: list | None) -> list[OutputRow]:
+    source = ValuesSource(values)
+    rows = []
+    for k in range(builder.last_keyframe + 1):
+        state = model.read(source, k, builder.speeds[k])
+        cov = model.position_cov(marginals[k], state) if marginals is not None else None
+        rows.append(_output_row(builder.keyframe_time(k), state, cov))
+    return rows
+
+
+class GraphFixedLag(_GraphEstimator):
+    """Incremental fixed-lag smoother: bounded window, flat cost and memory."""
+
+    name = "graph-fixed-lag"
+    summary = "GTSAM incremental fixed-lag smoother (default 10 s lag), flat cost for hours-long drives; causal output"
+
+    def _make_smoother(self, model_name: str):
+        return FixedLagSmoother(model_name, self.config.fixed_lag_s)
+
+    def _builder_options(self) -> dict[str, Any]:
+        return {
+            "max_delay_s": self.config.max_delay_s,
+            "landmark_lifetime_s": 0.5 * self.config.fixed_lag_s,
+            "keep_history": False,
+        }
+
+
+class GraphBatch(_GraphEstimator):
+    """Levenberg–Marquardt over the whole drive, from the causal iSAM2 pass; marginal covariances."""
+
+    name = "graph-batch"
+    summary = "GTSAM batch smoother (Levenberg-Marquardt over the whole drive, from an iSAM2 pass) with marginal covariances"
+
+    def _builder_options(self) -> dict[str, Any]:
+        return {"max_delay_s": math.inf}
+
+    def _row(self, k: int) -> OutputRow:
+        # the causal rows only seed the batch solve; skip their marginals
+        return _output_row(self.builder.keyframe_time(k), self.builder.states[k], None)
+
+    def finish(self) -> Estimate:
+        from graphpos.graph.calibration import estimate_range_scale
+
+        self._apply(self.builder.flush())
+        try:
+            initial = self.smoother.estimate()
+        except RuntimeError as exc:
+            raise gtsam_error(exc, f"{self.name}: initial estimate") from None
+        what = f"{self.name} on '{self._drive_name}'"
+        if self.config.range_scale == "estimate" and self.builder.range_records:
+            scale, values = estimate_range_scale(self.builder, initial, self.config, what)
+            self.builder.range_scale = scale
+        else:
+            values = optimise(self.builder.graph(), initial, self.config, what)
+        graph = self.builder.graph()
+        covs = None
+        if self.config.output_covariance:
+            covs = marginal_covariances(graph, values, [self.model.pose_key(k) for k in range(self.builder.last_keyframe + 1)], what)
+        return self._estimate(_rows_from_values(self.model, self.builder, values, covs))
+
+
+def optimise(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, config: GraphConfig, what: str) -> gtsam.Values:
+    """Levenberg–Marquardt; failures become EstimationError."""
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(config.batch_max_iterations)
+    params.setRelativeErrorTol(1e-6)
+    params.setAbsoluteErrorTol(1e-6)
+    try:
+        result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+    except RuntimeError as exc:
+        raise gtsam_error(exc, what) from None
+    if not np.isfinite(graph.error(result)):
+        raise EstimationError(f"{what}: Levenberg-Marquardt diverged (non-finite error)")
+    return result
+
+
+def marginal_covariances(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, keys: list[int], what: str) -> list[np.ndarray]:
+    """Marginal covariance of each key (one factorisation, then per-key solves)."""
+    try:
+        marginals = gtsam.Marginals(graph, values)
+        return [marginals.marginalCovariance(key) for key in keys]
+    except RuntimeError as exc:
+        raise gtsam_error(exc, f"{what}: marginal covariances") from None

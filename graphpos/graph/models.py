@@ -1,0 +1,275 @@
+"""The two graph parameterisations: planar (Pose2) and inertial (Pose3 + velocity + bias).
+
+Both expose the same small interface to :mod:`graphpos.graph.builder`: the
+keys of a keyframe, its initial values and priors, the odometry factors
+between two keyframes, and the absolute factors (tag/RSU range, position
+fix, compass yaw). Only GTSAM built-in factors are used.
+
+Conventions
+-----------
+The planar graph's Pose2 is ``(east, north, yaw)``. The inertial graph's
+navigation frame is east-north-up, the body frame x forward, y left, z up.
+GTSAM's ``PreintegrationCombinedParams.MakeSharedU(g)`` puts gravity at
+``(0, 0, -g)`` in that frame, so an accelerometer at rest reads ``+g`` on its
+z axis: the planar IMU's two accelerations are fed as the specific force
+``(a_x, a_y, +g)`` and its yaw rate as ``(0, 0, w_z)``. A planar prior on
+each keyframe (roll, pitch, height ~ 0) and a zero vertical velocity keep
+the 3-D states in the plane.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import gtsam
+import numpy as np
+from gtsam.symbol_shorthand import B, V, X
+
+from graphpos.graph.config import GraphConfig
+from graphpos.graph.odometry import OdometryDelta
+
+GRAVITY_MPS2 = 9.81
+
+
+@dataclass
+class KeyframeState:
+    """One keyframe's estimate in project terms (east-north, yaw from east)."""
+
+    east_m: float
+    north_m: float
+    yaw_rad: float
+    v_east_mps: float = 0.0
+    v_north_mps: float = 0.0
+    bias: np.ndarray | None = None  # accel(3) + gyro(3), inertial graph only
+
+    def shifted(self, de_m: float, dn_m: float) -> "KeyframeState":
+        return KeyframeState(self.east_m + de_m, self.north_m + dn_m, self.yaw_rad, self.v_east_mps, self.v_north_mps, self.bias)
+
+
+def robust(sigma: float | np.ndarray, config: GraphConfig, dim: int = 1) -> gtsam.noiseModel.Base:
+    """Gaussian noise with the configured M-estimator (Huber/Cauchy/none)."""
+    base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma)) if np.ndim(sigma) == 0 else gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float))
+    if config.robust_loss == "huber":
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(config.robust_k), base)
+    if config.robust_loss == "cauchy":
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(config.robust_k), base)
+    return base
+
+
+def _rot_en(yaw: float, cov_body_xy: np.ndarray) -> np.ndarray:
+    c, s = math.cos(yaw), math.sin(yaw)
+    R = np.array([[c, -s], [s, c]])
+    return R @ cov_body_xy @ R.T
+
+
+#: Tight sigma of a known landmark (tag/RSU) position prior, m.
+LANDMARK_SIGMA_M = 1e-3
+
+
+class PlanarModel:
+    """Pose2 keyframes ``X(k)``; tags as Point2 landmarks."""
+
+    name = "planar"
+
+    def __init__(self, config: GraphConfig):
+        self.config = config
+
+    def keyframe_keys(self, k: int) -> list[int]:
+        return [X(k)]
+
+    def insert_values(self, values: gtsam.Values, k: int, state: KeyframeState) -> None:
+        values.insert(X(k), gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad))
+
+    def prior_factors(self, k: int, state: KeyframeState, position_sigma_m: float, yaw_sigma_rad: float) -> list:
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([position_sigma_m, position_sigma_m, yaw_sigma_rad]))
+        return [gtsam.PriorFactorPose2(X(k), gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad), noise)]
+
+    def keyframe_factors(self, k: int, state: KeyframeState) -> list:
+        return []
+
+    def odometry_factors(self, k: int, delta: OdometryDelta, pim) -> list:
+        noise = gtsam.noiseModel.Gaussian.Covariance(delta.cov)
+        return [gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(delta.dx_m, delta.dy_m, delta.dtheta_rad), noise)]
+
+    def landmark(self, key: int, east_m: float, north_m: float) -> tuple[list, object]:
+        point = np.array([east_m, north_m])
+        return [gtsam.PriorFactorPoint2(key, point, gtsam.noiseModel.Isotropic.Sigma(2, LANDMARK_SIGMA_M))], point
+
+    def range_factor(self, k: int, landmark_key: int, range_m: float, noise) -> object:
+        return gtsam.RangeFactor2D(X(k), landmark_key, range_m, noise)
+
+    def fix_factor(self, k: int, east_m: float, north_m: float, noise) -> object:
+        return gtsam.PoseTranslationPrior2D(X(k), gtsam.Pose2(east_m, north_m, 0.0), noise)
+
+    def fix_dim(self) -> int:
+        return 2
+
+    def compass_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
+        return gtsam.PoseRotationPrior2D(X(k), gtsam.Rot2(yaw_rad), gtsam.noiseModel.Isotropic.Sigma(1, sigma_rad))
+
+    def predict(self, state: KeyframeState, delta: OdometryDelta, pim) -> KeyframeState:
+        pose = gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad).compose(gtsam.Pose2(delta.dx_m, delta.dy_m, delta.dtheta_rad))
+        return self._state(pose, delta.mean_speed_mps)
+
+    def read(self, source, k: int, speed_mps: float) -> KeyframeState:
+        """Keyframe ``k`` from a smoother (or :class:`~graphpos.graph.smoothers.ValuesSource`)."""
+        return self._state(source.calculateEstimatePose2(X(k)), speed_mps)
+
+    @staticmethod
+    def _state(pose: gtsam.Pose2, speed_mps: float) -> KeyframeState:
+        yaw = pose.theta()
+        return KeyframeState(pose.x(), pose.y(), yaw, speed_mps * math.cos(yaw), speed_mps * math.sin(yaw))
+
+    def pose_key(self, k: int) -> int:
+        return X(k)
+
+    def position_cov(self, marginal: np.ndarray, state: KeyframeState) -> np.ndarray:
+        """East/north covariance from a Pose2 marginal (tangent: body x, y, theta)."""
+        return _rot_en(state.yaw_rad, marginal[:2, :2])
+
+    def new_preintegration(self, bias: np.ndarray | None):
+        return None
+
+
+class InertialModel:
+    """Pose3 ``X(k)``, velocity ``V(k)``, IMU bias ``B(k)``; CombinedImuFactor between keyframes."""
+
+    name = "inertial"
+
+    #: Sigmas of the planar prior: roll, pitch (rad) and height (m).
+    PLANE_TILT_SIGMA_RAD = 0.01
+    PLANE_HEIGHT_SIGMA_M = 0.01
+    #: Loose sigma on everything the planar prior does not constrain.
+    FREE_SIGMA = 1e3
+    #: Yaw sigma of the wheel-odometry factor: loose, the IMU factor carries the gyro.
+    ODOMETRY_YAW_SIGMA_RAD = 0.1
+
+    def __init__(self, config: GraphConfig):
+        self.config = config
+        params = gtsam.PreintegrationCombinedParams.MakeSharedU(GRAVITY_MPS2)
+        accel_density = config.accel_sigma_mps2 / math.sqrt(config.imu_rate_hz)
+        gyro_density = config.gyro_sigma_radps / math.sqrt(config.imu_rate_hz)
+        params.setAccelerometerCovariance(np.eye(3) * accel_density**2)
+        params.setGyroscopeCovariance(np.eye(3) * gyro_density**2)
+        params.setIntegrationCovariance(np.eye(3) * 1e-8)
+        params.setBiasAccCovariance(np.eye(3) * config.accel_bias_walk_mps2_per_sqrt_s**2)
+        params.setBiasOmegaCovariance(np.eye(3) * config.gyro_bias_walk_radps_per_sqrt_s**2)
+        self.params = params
+        self.vertical_velocity_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([self.FREE_SIGMA, self.FREE_SIGMA, config.lateral_slip_sigma_mps]))
+        self.plane_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([self.PLANE_TILT_SIGMA_RAD, self.PLANE_TILT_SIGMA_RAD, self.FREE_SIGMA, self.FREE_SIGMA, self.FREE_SIGMA, self.PLANE_HEIGHT_SIGMA_M])
+        )
+
+    def keyframe_keys(self, k: int) -> list[int]:
+        return [X(k), V(k), B(k)]
+
+    @staticmethod
+    def _pose(state: KeyframeState) -> gtsam.Pose3:
+        return gtsam.Pose3(gtsam.Rot3.Yaw(state.yaw_rad), np.array([state.east_m, state.north_m, 0.0]))
+
+    def insert_values(self, values: gtsam.Values, k: int, state: KeyframeState) -> None:
+        values.insert(X(k), self._pose(state))
+        values.insert(V(k), np.array([state.v_east_mps, state.v_north_mps, 0.0]))
+        values.insert(B(k), gtsam.imuBias.ConstantBias(*self._bias_parts(state.bias)))
+
+    @staticmethod
+    def _bias_parts(bias: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+        if bias is None:
+            return np.zeros(3), np.zeros(3)
+        return np.asarray(bias[:3], dtype=float), np.asarray(bias[3:], dtype=float)
+
+    def prior_factors(self, k: int, state: KeyframeState, position_sigma_m: float, yaw_sigma_rad: float) -> list:
+        c = self.config
+        pose_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([self.PLANE_TILT_SIGMA_RAD, self.PLANE_TILT_SIGMA_RAD, yaw_sigma_rad, position_sigma_m, position_sigma_m, self.PLANE_HEIGHT_SIGMA_M])
+        )
+        bias_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([c.accel_bias_sigma_mps2] * 3 + [c.gyro_bias_sigma_radps] * 3))
+        speed_sigma = max(10.0, position_sigma_m)
+        return [
+            gtsam.PriorFactorPose3(X(k), self._pose(state), pose_noise),
+            gtsam.PriorFactorVector(V(k), np.array([state.v_east_mps, state.v_north_mps, 0.0]), gtsam.noiseModel.Isotropic.Sigma(3, speed_sigma)),
+            gtsam.PriorFactorConstantBias(B(k), gtsam.imuBias.ConstantBias(), bias_noise),
+        ]
+
+    def keyframe_factors(self, k: int, state: KeyframeState) -> list:
+        """Planar prior (roll, pitch, height ~ 0) and zero vertical velocity.
+
+        The prior's mean takes the keyframe's predicted yaw and east/north,
+        whose sigmas are free, so the rotation log map sees small angles.
+        """
+        return [
+            gtsam.PriorFactorPose3(X(k), self._pose(state), self.plane_noise),
+            gtsam.PriorFactorVector(V(k), np.zeros(3), self.vertical_velocity_noise),
+        ]
+
+    def odometry_factors(self, k: int, delta: OdometryDelta, pim) -> list:
+        """CombinedImuFactor plus the wheel odometry as a BetweenFactorPose3.
+
+        The between factor's translation carries the wheel speed and the
+        non-holonomic constraint (small lateral/vertical sigma); its yaw is
+        loose so the gyro, already in the IMU factor, is not counted twice.
+        """
+        cov = np.zeros((6, 6))
+        cov[0, 0] = cov[1, 1] = self.PLANE_TILT_SIGMA_RAD**2
+        cov[2, 2] = self.ODOMETRY_YAW_SIGMA_RAD**2
+        cov[3:5, 3:5] = delta.cov[:2, :2]
+        cov[2, 3:5] = cov[3:5, 2] = 0.0
+        cov[5, 5] = max(delta.cov[1, 1], 1e-8)
+        between = gtsam.Pose3(gtsam.Rot3.Yaw(delta.dtheta_rad), np.array([delta.dx_m, delta.dy_m, 0.0]))
+        factors = [gtsam.BetweenFactorPose3(X(k - 1), X(k), between, gtsam.noiseModel.Gaussian.Covariance(cov))]
+        factors.append(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), pim))
+        return factors
+
+    def landmark(self, key: int, east_m: float, north_m: float) -> tuple[list, object]:
+        point = np.array([east_m, north_m, 0.0])
+        return [gtsam.PriorFactorPoint3(key, point, gtsam.noiseModel.Isotropic.Sigma(3, LANDMARK_SIGMA_M))], point
+
+    def range_factor(self, k: int, landmark_key: int, range_m: float, noise) -> object:
+        return gtsam.RangeFactor3D(X(k), landmark_key, range_m, noise)
+
+    def fix_factor(self, k: int, east_m: float, north_m: float, noise) -> object:
+        return gtsam.GPSFactor(X(k), np.array([east_m, north_m, 0.0]), noise)
+
+    def fix_dim(self) -> int:
+        return 3
+
+    def compass_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
+        noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([self.FREE_SIGMA, self.FREE_SIGMA, sigma_rad]))
+        return gtsam.PoseRotationPrior3D(X(k), gtsam.Rot3.Yaw(yaw_rad), noise)
+
+    def predict(self, state: KeyframeState, delta: OdometryDelta, pim) -> KeyframeState:
+        nav = gtsam.NavState(self._pose(state), np.array([state.v_east_mps, state.v_north_mps, 0.0]))
+        bias = gtsam.imuBias.ConstantBias(*self._bias_parts(state.bias))
+        pred = pim.predict(nav, bias)
+        # Keep the prediction planar and use the wheel odometry for position.
+        pose = self._pose(state).compose(gtsam.Pose3(gtsam.Rot3.Yaw(delta.dtheta_rad), np.array([delta.dx_m, delta.dy_m, 0.0])))
+        v = pred.velocity()
+        yaw = pred.attitude().yaw()
+        return KeyframeState(pose.x(), pose.y(), yaw, float(v[0]), float(v[1]), state.bias)
+
+    def read(self, source, k: int, speed_mps: float) -> KeyframeState:
+        """Keyframe ``k`` from a smoother (or :class:`~graphpos.graph.smoothers.ValuesSource`)."""
+        pose = source.calculateEstimatePose3(X(k))
+        v = source.calculateEstimateVector(V(k))
+        b = source.calculateEstimateConstantBias(B(k))
+        bias = np.concatenate([b.accelerometer(), b.gyroscope()])
+        return KeyframeState(pose.x(), pose.y(), pose.rotation().yaw(), float(v[0]), float(v[1]), bias)
+
+    def pose_key(self, k: int) -> int:
+        return X(k)
+
+    def position_cov(self, marginal: np.ndarray, state: KeyframeState) -> np.ndarray:
+        """East/north covariance from a Pose3 marginal (tangent: rotation, then body translation)."""
+        return _rot_en(state.yaw_rad, marginal[3:5, 3:5])
+
+    def new_preintegration(self, bias: np.ndarray | None):
+        return gtsam.PreintegratedCombinedMeasurements(self.params, gtsam.imuBias.ConstantBias(*self._bias_parts(bias)))
+
+
+def make_model(config: GraphConfig, has_accelerometers: bool):
+    """The configured parameterisation (``auto``: inertial iff accelerometers)."""
+    kind = config.parameterisation
+    if kind == "auto":
+        kind = "inertial" if has_accelerometers else "planar"
+    return InertialModel(config) if kind == "inertial" else PlanarModel(config)
