@@ -23,6 +23,7 @@ from eval.metrics import WHOLE
 from eval.report import Report, Section, fmt, write_json
 from graphpos.drive import Drive
 from graphpos.errors import MissingChannelError
+from graphpos.io import read_drive, write_drive
 from graphpos.io.exports import export_estimate, kml_text, write_atomically
 
 
@@ -61,8 +62,14 @@ def result_record(r: JobResult) -> dict[str, Any]:
         "config": r.config,
         "metrics": r.metrics,
         "error": r.error,
+        "not_applicable": r.not_applicable,
         "traceback": r.traceback,
     }
+
+
+def cell_error(r: JobResult) -> str:
+    """What a table cell says for a run that gave no figures."""
+    return f"n/a: {r.error}" if r.not_applicable else f"FAILED: {r.error}"
 
 
 def window_table(results: list[JobResult], window: str) -> tuple[list[str], list[list[str]]]:
@@ -73,7 +80,7 @@ def window_table(results: list[JobResult], window: str) -> tuple[list[str], list
     rows = []
     for r in results:
         if not r.ok:
-            rows.append([r.job.estimator, f"FAILED: {r.error}"] + [""] * (len(header) - 2))
+            rows.append([r.job.estimator, cell_error(r)] + [""] * (len(header) - 2))
             continue
         w = r.metrics["windows"].get(window)
         if w is None:
@@ -131,16 +138,6 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], f
     return sec
 
 
-def write_mcap(drive: Drive, estimates: list, path: Path) -> Path:
-    """The drive, its truth and every estimate in one MCAP, written atomically."""
-    from graphpos.io import write_drive
-
-    tmp = path.with_name(f".{path.name}.tmp")
-    write_drive(tmp, drive, estimates=estimates)
-    tmp.replace(path)
-    return path
-
-
 def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Path, layout: str | None = None,
              range_model: Any = None, workers: int | None = None, scheduler: str | None = None,
              progress: bool = True, mcap: bool = True) -> Outcome:
@@ -177,8 +174,9 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
         mine = [r for r in results if r.job.tag["drive_index"] == i]
         add_drive_sections(report, drive, mine, folder, layout=layout)
         if mcap:
-            ests = [r.estimate for r in mine if r.ok]
-            write_mcap(drive, ests, folder / safe_name(drive.name) / f"{safe_name(drive.name)}.mcap")
+            # graphpos.io.write_drive writes atomically
+            write_drive(folder / safe_name(drive.name) / f"{safe_name(drive.name)}.mcap", drive,
+                        estimates=[r.estimate for r in mine if r.ok])
     add_failure_section(report, results)
     write_json(folder / "results.json", {
         "command": "evaluate",
@@ -203,6 +201,4 @@ def add_failure_section(report: Report, results: list[JobResult]) -> None:
 
 def file_sources(paths: list[str]) -> list[tuple[FileSource, Drive]]:
     """Read each drive file here (to check it and plot it) and name it as the workers' source."""
-    from graphpos.io import read_drive
-
     return [(FileSource(str(Path(p).resolve())), read_drive(p)) for p in paths]

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
 import os
 import time
 import traceback
@@ -33,7 +34,7 @@ from typing import Any, Iterator
 from tqdm import tqdm
 
 from graphpos.drive import Drive
-from graphpos.errors import ConfigError, GraphposError
+from graphpos.errors import ConfigError, GraphposError, MissingChannelError
 
 
 @dataclass(frozen=True)
@@ -55,14 +56,15 @@ class FileSource:
 class SimSource:
     """A simulated drive: the arguments of :func:`graphpos.sim.simulate`.
 
-    ``overrides`` is a tuple of (key, value) pairs so that the source hashes.
+    ``overrides_json`` holds the (nested) overrides as JSON so that the
+    source hashes and caches.
     """
 
     scenario: str
     pattern: str | None = None
     seed: int = 0
     duration_s: float | None = None
-    overrides: tuple[tuple[str, Any], ...] = ()
+    overrides_json: str = ""
     rfid_latency_s: tuple[float, float] | None = None
 
     def load(self) -> Drive:
@@ -73,12 +75,14 @@ class SimSource:
             pattern=self.pattern,
             seed=self.seed,
             duration_s=self.duration_s,
-            overrides=dict(self.overrides) or None,
+            overrides=json.loads(self.overrides_json) if self.overrides_json else None,
             rfid_latency_s=self.rfid_latency_s,
         )
 
     def describe(self) -> dict[str, Any]:
-        return {k: (dict(v) if k == "overrides" else v) for k, v in dataclasses.asdict(self).items()}
+        out = dataclasses.asdict(self)
+        out["overrides"] = json.loads(out.pop("overrides_json") or "{}")
+        return out
 
 
 @functools.lru_cache(maxsize=4)
@@ -130,10 +134,17 @@ class JobResult:
     estimate: Any = None
     error: str | None = None
     traceback: str | None = None
+    #: The estimator refused the drive for lacking a channel it needs (e.g.
+    #: accelerometers on Plaza): reported as "n/a", not counted as a failure.
+    not_applicable: bool = False
 
     @property
     def ok(self) -> bool:
         return self.error is None
+
+    @property
+    def failed(self) -> bool:
+        return self.error is not None and not self.not_applicable
 
 
 def _range_model(spec: Any) -> Any:
@@ -170,6 +181,9 @@ def run_job(job: Job) -> JobResult:
         result.metrics["diagnostics"] = estimate.diagnostics
         if job.keep_estimate:
             result.estimate = estimate
+    except MissingChannelError as exc:
+        result.error = str(exc)
+        result.not_applicable = True
     except GraphposError as exc:
         result.error = f"{type(exc).__name__}: {exc}"
     except Exception as exc:  # a bug in an estimator must not sink the sweep; it is reported
@@ -241,8 +255,8 @@ def provenance() -> dict[str, Any]:
 
 
 def failures(results: list[JobResult]) -> list[JobResult]:
-    """The failed results."""
-    return [r for r in results if not r.ok]
+    """The failed results (not those where the estimator does not apply)."""
+    return [r for r in results if r.failed]
 
 
 def describe_source(source: Any) -> dict[str, Any]:

@@ -27,6 +27,14 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+def _label_axes(ax, xlabel: str, ylabel: str, title: str, ncol: int = 1) -> None:
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8, ncol=ncol)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+
+
 def _colors(names: list[str]) -> dict[str, tuple]:
     cmap = plt.get_cmap("tab10")
     return {n: cmap(i % 10) for i, n in enumerate(names)}
@@ -93,12 +101,8 @@ def error_vs_time(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
     for est in estimates:
         s = error_series(drive, est)
         ax.plot(s["t_s"], s["error_m"], lw=1.0, color=colors[est.name], label=est.name)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("position error [m]")
     ax.set_ylim(bottom=0)
-    ax.legend(fontsize=8, ncol=2)
-    ax.set_title(f"{drive.name}: position error")
-    ax.grid(alpha=0.3)
+    _label_axes(ax, "time [s]", "position error [m]", f"{drive.name}: position error", ncol=2)
     return _save(fig, path)
 
 
@@ -111,12 +115,8 @@ def error_cdf(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
         err = err[np.isfinite(err)]
         if err.size:
             ax.step(err, np.arange(1, err.size + 1) / err.size, where="post", color=colors[est.name], label=est.name)
-    ax.set_xlabel("position error [m]")
-    ax.set_ylabel("fraction of epochs")
     ax.set_ylim(0, 1)
-    ax.legend(fontsize=8)
-    ax.set_title(f"{drive.name}: error CDF")
-    ax.grid(alpha=0.3)
+    _label_axes(ax, "position error [m]", "fraction of epochs", f"{drive.name}: error CDF")
     return _save(fig, path)
 
 
@@ -133,11 +133,7 @@ def speed_error(drive: Drive, estimates: list[Estimate], path: Path) -> Path | N
     for est in with_velocity:
         s = error_series(drive, est)
         ax.plot(s["t_s"], s["speed_error_mps"], lw=1.0, color=colors[est.name], label=est.name)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("speed error [m/s]")
-    ax.legend(fontsize=8, ncol=2)
-    ax.set_title(f"{drive.name}: speed error against truth")
-    ax.grid(alpha=0.3)
+    _label_axes(ax, "time [s]", "speed error [m/s]", f"{drive.name}: speed error against truth", ncol=2)
     return _save(fig, path)
 
 
@@ -154,11 +150,7 @@ def cost_accuracy(points: dict[str, list[tuple[float, float, float]]], path: Pat
             continue
         n, m, s = (np.array(v) for v in zip(*pts))
         ax.errorbar(n, m, yerr=s, marker="o", capsize=3, color=colors[name], label=name)
-    ax.set_xlabel("number of tags")
-    ax.set_ylabel("RMS position error in tunnel [m]")
     ax.set_ylim(bottom=0)
-    ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title(title)
+    _label_axes(ax, "number of tags", "RMS position error in tunnel [m]", title)
     return _save(fig, path)
 

@@ -11,6 +11,7 @@ import pytest
 from eval.evaluate import evaluate
 from eval.execution import Job, execute
 from graphpos.errors import MissingChannelError
+from graphpos.io import read_drive, read_estimates
 
 
 def _numbers(results_json: dict) -> list:
@@ -25,7 +26,7 @@ def _numbers(results_json: dict) -> list:
 
 def test_evaluate_writes_every_artefact(tmp_path, drive, test_estimators):
     out = tmp_path / "out"
-    outcome = evaluate([(drive, drive)], ["noisy-truth"], out, workers=1, progress=False, mcap=False)
+    outcome = evaluate([(drive, drive)], ["noisy-truth"], out, workers=1, progress=False)
     assert not outcome.failures
     for name in ("results.json", "report.md", "report.html"):
         assert (out / name).stat().st_size > 0
@@ -46,6 +47,10 @@ def test_evaluate_writes_every_artefact(tmp_path, drive, test_estimators):
     # TUM: 8 columns, one row per output
     tum = np.loadtxt(sub / "noisy-truth.tum")
     assert tum.shape == (len(drive.truth), 8)
+    # the MCAP holds the drive and the estimate
+    back = read_estimates(sub / "straight.mcap")
+    assert [e.name for e in back] == ["noisy-truth"]
+    assert read_drive(sub / "straight.mcap").truth == drive.truth
 
 
 def test_failures_are_reported_not_raised(tmp_path, drive, test_estimators):

@@ -1,0 +1,85 @@
+"""``graphpos layout-study``: how few tags suffice (song2016 §5.1: 42 against 16 tags).
+
+Every named tag layout of the scenario's drives (dense, optimized, groups
+every 60/90/120 m) is heard by each estimator on the same drives (seeds); the
+RMS error in the tunnel against the number of tags is the cost/accuracy
+curve. The drives are the same for every layout: a layout only drops the
+readings of the tags it does not keep (:meth:`graphpos.drive.Drive.with_layout`).
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eval import plots
+from eval.evaluate import Outcome, add_failure_section, result_record
+from eval.execution import Job, SimSource, execute, load_drive, provenance
+from eval.reproduce import _cell, _figure
+from eval.report import Report, write_json
+from graphpos.errors import ConfigError
+
+DEFAULT_ESTIMATORS = ("fusion-ekf", "fukf", "graph-isam2", "graph-batch")
+#: Layouts in order of decreasing tag count, where the drive has them.
+LAYOUTS = ("dense", "optimized", "groups-60m", "groups-90m", "groups-120m")
+
+
+def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[str] | None = None,
+                 workers: int | None = None, scheduler: str | None = None, progress: bool = True,
+                 duration_s: float | None = None) -> Outcome:
+    """Run the study and write ``results.json``, ``report.md``/``.html`` and ``cost_accuracy.png``."""
+    from graphpos.sim import SCENARIOS
+
+    started = time.perf_counter()
+    if scenario not in SCENARIOS:
+        raise ConfigError(f"unknown scenario '{scenario}' (known: {', '.join(SCENARIOS)})")
+    if seeds < 1:
+        raise ConfigError(f"--seeds must be at least 1, got {seeds}")
+    names = list(estimators or DEFAULT_ESTIMATORS)
+    sources = [SimSource(scenario, None, seed, duration_s=duration_s) for seed in range(seeds)]
+    drive = load_drive(sources[0])
+    layouts = [name for name in LAYOUTS if name in drive.tags.layouts]
+    layouts += sorted(set(drive.tags.layouts) - set(layouts))
+    if len(drive.tags) == 0:
+        raise ConfigError(f"scenario '{scenario}' has no RFID tags: nothing to study")
+    n_tags = {name: int(drive.tags.layout(name).size) for name in layouts}
+    jobs = [Job(src, est, layout=lay, tag={"layout": lay}) for lay in layouts for est in names for src in sources]
+    results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="layout-study")
+    by = {(j.layout, j.estimator, j.source): r for j, r in zip(jobs, results)}
+
+    points: dict[str, list[tuple[float, float, float]]] = {}
+    rows, record = [], []
+    for lay in layouts:
+        row = [lay, str(n_tags[lay])]
+        for est in names:
+            rs = [by[(lay, est, s)] for s in sources]
+            rms = [_figure(r, "in_tunnel", "rms_m") for r in rs]
+            ok = [v for v in rms if np.isfinite(v)]
+            if ok:
+                points.setdefault(est, []).append((n_tags[lay], float(np.mean(ok)), float(np.std(ok))))
+            row.append(_cell(rs, "in_tunnel", "rms_m"))
+            record.append({"layout": lay, "n_tags": n_tags[lay], "estimator": est, "rms_in_tunnel_m": rms,
+                           "max_in_tunnel_m": [_figure(r, "in_tunnel", "max_m") for r in rs],
+                           "errors": [r.error for r in rs]})
+        rows.append(row)
+
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    report = Report(f"graphpos layout-study — {scenario}")
+    sec = report.section("RMS position error in the tunnel against the number of tags")
+    sec.text(f"Mean ± STD over {seeds} seed(s) of the Euclidean RMS error in the in_tunnel window, metres. "
+             "Same drives for every layout; a layout keeps only its tags' readings.")
+    sec.table(["layout", "tags"] + names, rows)
+    sec.figure(plots.cost_accuracy(points, folder / "cost_accuracy.png", f"{scenario}: cost against accuracy"))
+    add_failure_section(report, results)
+    took = time.perf_counter() - started
+    report.section("Run").text(f"{len(results)} runs in {took:.0f} s.")
+    write_json(folder / "results.json", {
+        "command": "layout-study", "scenario": scenario, "seeds": seeds, "estimators": names,
+        "n_tags": n_tags, "wall_time_s": took, "provenance": provenance(), "curve": record,
+        "runs": [result_record(r) for r in results],
+    })
+    report.write(folder)
+    return Outcome(results, folder)

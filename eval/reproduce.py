@@ -1,0 +1,344 @@
+"""``graphpos reproduce``: the papers' tables rebuilt on simulated drives, ours beside theirs.
+
+Every (drive, estimator, layout) run is done once, even when several tables
+use it, and all runs go to the executor together. Each table cell is the mean
+± STD over seeds of the figure the paper reports. A run that fails shows
+``FAILED: <reason>`` in its cell, is listed in a Failures section and in
+``results.json``; one where the estimator refuses the drive for a missing
+channel shows ``n/a``.
+
+Real data: when the Plaza file is present, the estimators that can use its
+sensors (UWB ranges, wheel odometry, gyro; no accelerometers, no compass) run
+on it. The ranging is not calibrated on the evaluated drive's truth: Plaza1
+is the only Plaza drive available, so the range model is the drive's default
+(:func:`graphpos.ranging.default_range_model`: the radio's ranges as
+reported, with the default distance-dependent sigma) — no truth is used.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from eval import plots
+from eval.evaluate import Outcome, add_failure_section, cell_error, result_record, safe_name
+from eval.execution import Job, JobResult, SimSource, execute, load_drive, provenance
+from eval.experiments import GRAPH_ESTIMATORS, LIU2016_BOUND_M, Experiment, experiments
+from eval.metrics import WHOLE
+from eval.report import Report, fmt, mean_spread, write_json
+
+#: Seeds per experiment.
+SEEDS_FULL = 5
+SEEDS_QUICK = 2
+#: song2016 Table 4 patterns run by --quick (one constant-angular-velocity curve, one lane change).
+QUICK_TABLE4 = ("constant", "lane-change-curve")
+#: RFID latency of the late-measurement study (uniform, seconds).
+LATENCY_S = (0.5, 2.0)
+LATENCY_ESTIMATORS = (("fusion-ekf", "dense"), ("fukf", "optimized"), *((g, "dense") for g in GRAPH_ESTIMATORS))
+
+_RunKey = tuple  # (SimSource or "plaza", estimator, layout)
+
+
+def default_plaza_path() -> Path:
+    """``<repo>/../shared/data/plaza/Plaza1.mat``."""
+    return Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "plaza" / "Plaza1.mat"
+
+
+#: Estimators tried on Plaza (those lacking a sensor Plaza does not have report n/a).
+PLAZA_ESTIMATORS = ("multilateration", "rfid-ekf", "dr", "fusion-ekf", "fukf", "two-level-ekf", *GRAPH_ESTIMATORS)
+
+
+class _Runs:
+    """Deduplicated jobs: one per (source, estimator, layout)."""
+
+    def __init__(self) -> None:
+        self.jobs: dict[_RunKey, Job] = {}
+
+    def add(self, source: Any, estimator: str, layout: str | None, keep: bool = False) -> _RunKey:
+        key = (source if isinstance(source, SimSource) else "plaza", estimator, layout)
+        old = self.jobs.get(key)
+        if old is None or (keep and not old.keep_estimate):
+            self.jobs[key] = Job(source, estimator, layout=layout, keep_estimate=keep)
+        return key
+
+
+def _figure(r: JobResult, window: str, stat: str) -> float:
+    if not r.ok:
+        return math.nan
+    w = r.metrics["windows"].get(window)
+    return w["position"][stat] if w else math.nan
+
+
+def _cell(results: list[JobResult], window: str, stat: str) -> str:
+    """Mean ± STD over seeds, or why there is no figure."""
+    good = [r for r in results if r.ok]
+    if not good:
+        return cell_error(results[0]) if results else "–"
+    text = mean_spread([_figure(r, window, stat) for r in good])
+    failed = len(results) - len(good)
+    return text + (f" ({failed} of {len(results)} runs failed)" if failed else "")
+
+
+def _run_info(results: list[JobResult]) -> tuple[str, str]:
+    good = [r for r in results if r.ok]
+    if not good:
+        return "–", "–"
+    return fmt(np.median([r.metrics["output_rate_hz"] for r in good]), 1), fmt(good[0].metrics["velocity_provided"])
+
+
+def _experiment_table(exp: Experiment, res: dict[_RunKey, JobResult], sources: list[SimSource]) -> tuple[list[str], list[list[str]], list[dict]]:
+    """Header, rows and the JSON record of one max/RMS table."""
+    header = ["estimator", "layout", "paper max", "paper RMS", "ours max", "ours RMS"]
+    in_tunnel_col = exp.window == WHOLE
+    if in_tunnel_col:
+        header.append("ours RMS in tunnel")
+    header += ["rate [Hz]", "velocity", "wall [s]"]
+    rows, records = [], []
+    for row in exp.all_rows():
+        rs = [res[(s, row.estimator, row.layout)] for s in sources]
+        pub = row.published or (math.nan, math.nan)
+        line = [row.label, row.layout or "–", fmt(pub[0]), fmt(pub[1]), _cell(rs, exp.window, "max_m"),
+                _cell(rs, exp.window, "rms_m")]
+        if in_tunnel_col:
+            line.append(_cell(rs, "in_tunnel", "rms_m"))
+        rate, velocity = _run_info(rs)
+        wall = [r.metrics["wall_time_s"] for r in rs if r.ok]
+        line += [rate, velocity, mean_spread(wall)]
+        rows.append(line)
+        records.append({
+            "estimator": row.estimator, "label": row.label, "layout": row.layout, "published_max_rms_m": row.published,
+            "max_m": [_figure(r, exp.window, "max_m") for r in rs],
+            "rms_m": [_figure(r, exp.window, "rms_m") for r in rs],
+            "errors": [r.error for r in rs],
+        })
+    return header, rows, records
+
+
+def _zones_table(exp: Experiment, res: dict[_RunKey, JobResult], sources: list[SimSource]) -> tuple[list[str], list[list[str]], list[dict]]:
+    """liu2016: 2DRMS per zone window."""
+    zones: list[str] = []
+    for row in exp.all_rows():
+        for s in sources:
+            r = res[(s, row.estimator, row.layout)]
+            if r.ok:
+                zones += [w for w in r.metrics["windows"] if w.startswith("zone:") and w not in zones]
+    def zone_header(zone: str) -> str:
+        bound = LIU2016_BOUND_M.get(zone[len("zone:"):])
+        return f"2DRMS {zone[len('zone:'):]} [m] " + (f"(paper ≤ {bound:.1f})" if bound else "(paper: no figure)")
+
+    header = ["estimator"] + [zone_header(z) for z in zones] + [f"2DRMS {WHOLE} [m]"]
+    rows, records = [], []
+    for row in exp.all_rows():
+        rs = [res[(s, row.estimator, row.layout)] for s in sources]
+        rows.append([row.label] + [_cell(rs, z, "drms2_m") for z in zones] + [_cell(rs, WHOLE, "drms2_m")])
+        records.append({"estimator": row.estimator, "drms2_m": {z: [_figure(r, z, "drms2_m") for r in rs] for z in zones + [WHOLE]},
+                        "errors": [r.error for r in rs]})
+    return header, rows, records
+
+
+def _table1(seeds: int) -> tuple[list[str], list[list[str]], dict]:
+    """song2016 Table 1 from :mod:`graphpos.ranging.table1`, over calibration seeds."""
+    from graphpos.ranging.drive_models import CALIBRATION_SEED
+    from graphpos.ranging.table1 import PUBLISHED_TABLE1, table1
+
+    runs = [table1(CALIBRATION_SEED + k) for k in range(seeds)]
+    keys = list(next(iter(next(iter(runs[0].values())).values())))
+    header = ["environment", "model", "paper mean", "paper STD"] + [f"ours {k}" for k in keys]
+    rows = []
+    for env, models in runs[0].items():
+        for kind in models:
+            pub = PUBLISHED_TABLE1.get(env, {}).get(kind, (math.nan, math.nan))
+            rows.append([env, kind, fmt(pub[0]), fmt(pub[1])] + [mean_spread([r[env][kind][k] for r in runs]) for k in keys])
+    return header, rows, {"seeds": [CALIBRATION_SEED + k for k in range(seeds)], "figures": runs}
+
+
+def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza: Path | None = None,
+              workers: int | None = None, scheduler: str | None = None, progress: bool = True) -> Outcome:
+    """Run every experiment and write the reproduction folder (see the module docstring)."""
+    from graphpos.errors import ConfigError
+
+    started = time.perf_counter()
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    n_seeds = seeds if seeds is not None else (SEEDS_QUICK if quick else SEEDS_FULL)
+    if n_seeds < 1:
+        raise ConfigError(f"--seeds must be at least 1, got {n_seeds}")
+    exps = [e for e in experiments()
+            if not (quick and e.key.startswith("song2016-table4/") and e.pattern not in QUICK_TABLE4)]
+    plaza_path = plaza if plaza is not None else default_plaza_path()
+    if plaza is not None and not plaza.is_file():
+        raise ConfigError(f"Plaza file {plaza} does not exist")
+
+    runs = _Runs()
+    sources: dict[str, list[SimSource]] = {}
+    for exp in exps:
+        sources[exp.key] = [SimSource(exp.scenario, exp.pattern, seed, overrides_json=exp.overrides_json)
+                            for seed in range(n_seeds)]
+        for seed, src in enumerate(sources[exp.key]):
+            for row in exp.all_rows():
+                runs.add(src, row.estimator, row.layout, keep=seed == 0)
+    latency_pairs = []
+    for seed in range(n_seeds):
+        plain = SimSource("paper-straight", None, seed)
+        late = SimSource("paper-straight", None, seed, rfid_latency_s=LATENCY_S)
+        latency_pairs.append((plain, late))
+        for name, layout in LATENCY_ESTIMATORS:
+            runs.add(plain, name, layout)
+            runs.add(late, name, layout)
+    plaza_drive = None
+    if plaza_path.is_file():
+        from graphpos.io.plaza import import_plaza
+
+        plaza_drive = import_plaza(plaza_path)
+        for name in PLAZA_ESTIMATORS:
+            runs.add(plaza_drive, name, None, keep=True)
+
+    keys = list(runs.jobs)
+    results = execute([runs.jobs[k] for k in keys], workers=workers, scheduler=scheduler, progress=progress,
+                      desc="reproduce")
+    res = dict(zip(keys, results))
+
+    report = Report("graphpos reproduce — the papers' tables on simulated drives" + (" (quick)" if quick else ""))
+    report.section("How to read this").text(
+        f"Each cell is the mean ± STD over {n_seeds} seed(s) of simulated drives built to the paper's "
+        "specification (graphpos.sim scenarios); 'paper' columns are the published single-test figures. Errors "
+        "are Euclidean 2-D position errors in metres against the simulated truth, absolute (no alignment). "
+        "The factor-graph estimators (graph-*) are extra rows: the papers have no such figures. "
+        "FAILED cells name the error; n/a means the estimator lacks a sensor the drive does not carry."
+    )
+    tables: dict[str, Any] = {}
+
+    header, rows, record = _table1(n_seeds)
+    report.section("song2016 Table 1 — RSS to distance fitting errors").table(header, rows).text(
+        "From graphpos.ranging.table1 (simulated calibration collections; see its docstring for what 'fitting "
+        "error' is taken to mean and in which unit)."
+    )
+    tables["song2016-table1"] = record
+
+    plotted: set = set()
+    for exp in exps:
+        srcs = sources[exp.key]
+        sec = report.section(exp.title)
+        sec.text(f"Scenario {exp.scenario}" + (f", pattern {exp.pattern}" if exp.pattern else "")
+                 + f"; window: {exp.window}." + (f" {exp.note}" if exp.note else ""))
+        make = _zones_table if exp.metric == "drms2_zones" else _experiment_table
+        header, rows, record = make(exp, res, srcs)
+        sec.table(header, rows)
+        tables[exp.key] = {"title": exp.title, "scenario": exp.scenario, "pattern": exp.pattern,
+                           "window": exp.window, "seeds": list(range(n_seeds)), "rows": record}
+        first = srcs[0]
+        if first not in plotted:
+            plotted.add(first)
+            estimates = [res[(first, r.estimator, r.layout)].estimate for r in exp.all_rows()
+                         if res[(first, r.estimator, r.layout)].ok]
+            if estimates:
+                drive = load_drive(first)
+                sub = folder / safe_name(exp.key)
+                sec.figure(plots.trajectories(drive, estimates, sub / "trajectories.png"))
+                sec.figure(plots.error_vs_time(drive, estimates, sub / "error_vs_time.png"))
+                if exp.key == "song2016-table3":
+                    speed = plots.speed_error(drive, estimates, sub / "speed_error.png")
+                    if speed:
+                        sec.figure(speed)
+
+    _speed_section(report, res, sources.get("song2016-table3", []), tables)
+    _latency_section(report, res, latency_pairs, tables)
+    _fault_section(report, results, tables)
+    if plaza_drive is not None:
+        _plaza_section(report, res, plaza_drive, folder, tables)
+    else:
+        report.section("Real data (Plaza)").text(f"Skipped: {plaza_path} not found (give --plaza FILE.mat).")
+
+    add_failure_section(report, results)
+    took = time.perf_counter() - started
+    report.section("Run").text(f"{len(results)} runs ({len(results) - sum(r.ok for r in results)} without figures) "
+                               f"in {took:.0f} s; seeds {n_seeds}; quick={quick}.")
+    write_json(folder / "results.json", {
+        "command": "reproduce", "quick": quick, "seeds": n_seeds, "wall_time_s": took,
+        "provenance": provenance(), "tables": tables, "runs": [result_record(r) for r in results],
+    })
+    report.write(folder)
+    return Outcome(results, folder)
+
+
+def _speed_section(report: Report, res: dict, srcs: list[SimSource], tables: dict) -> None:
+    """song2016 Fig. 16: speed error of the estimators with velocity, beside the raw wheel speed."""
+    if not srcs:
+        return
+    by_name: dict[str, list[JobResult]] = defaultdict(list)
+    for (src, name, _layout), r in res.items():
+        if src in srcs and r.ok and r.metrics["velocity_provided"]:
+            by_name[name].append(r)
+    if not by_name:
+        return
+    wheel = [r.metrics["windows"][WHOLE]["wheel_speed"] for rs in by_name.values() for r in rs[:1]]
+    rows = [["raw wheel speed", mean_spread([w["mean_mps"] for w in wheel if w], 3),
+             mean_spread([w["rms_mps"] for w in wheel if w], 3)]]
+    for name, rs in by_name.items():
+        sp = [r.metrics["windows"][WHOLE]["speed"] for r in rs]
+        rows.append([name, mean_spread([s["mean_mps"] for s in sp], 3), mean_spread([s["rms_mps"] for s in sp], 3)])
+    report.section("Speed error against truth (song2016 Fig. 16), straight test").table(
+        ["source", "mean [m/s]", "RMS [m/s]"], rows)
+    tables["song2016-fig16"] = {"rows": rows}
+
+
+def _latency_section(report: Report, res: dict, pairs: list[tuple[SimSource, SimSource]], tables: dict) -> None:
+    """Late RFID readings (arrival 0.5-2 s after the reading) against on-time ones."""
+    rows, record = [], []
+    for name, layout in LATENCY_ESTIMATORS:
+        plain = [res[(p, name, layout)] for p, _ in pairs]
+        late = [res[(q, name, layout)] for _, q in pairs]
+        rows.append([name, layout, _cell(plain, "in_tunnel", "rms_m"), _cell(late, "in_tunnel", "rms_m"),
+                     _cell(plain, "in_tunnel", "max_m"), _cell(late, "in_tunnel", "max_m")])
+        record.append({"estimator": name, "on_time_rms_m": [_figure(r, "in_tunnel", "rms_m") for r in plain],
+                       "late_rms_m": [_figure(r, "in_tunnel", "rms_m") for r in late]})
+    report.section("Late measurements: RFID readings arriving 0.5–2 s late (paper-straight, in tunnel)").table(
+        ["estimator", "layout", "RMS on time", "RMS late", "max on time", "max late"], rows).text(
+        "Same drives (seeds) with and without latency; a filter that processes in arrival order sees old "
+        "readings, a graph attaches them to the keyframe of their own timestamp.")
+    tables["latency"] = record
+
+
+def _fault_section(report: Report, results: list[JobResult], tables: dict) -> None:
+    """Figures inside every ``fault:*`` window the simulated drives carry."""
+    rows = []
+    for r in results:
+        if not r.ok:
+            continue
+        for label, w in r.metrics["windows"].items():
+            if label.startswith("fault:") and w["position"]["n"]:
+                rows.append([r.drive_name or "?", r.job.estimator, label, fmt(w["position"]["max_m"]),
+                             fmt(w["position"]["rms_m"]), fmt(r.metrics["windows"][WHOLE]["position"]["rms_m"])])
+    if rows:
+        report.section("Faults: error inside the fault windows").table(
+            ["drive", "estimator", "window", "max in fault", "RMS in fault", "RMS whole"], rows)
+        tables["faults"] = rows
+
+
+def _plaza_section(report: Report, res: dict, drive, folder: Path, tables: dict) -> None:
+    rs = {name: res[("plaza", name, None)] for name in PLAZA_ESTIMATORS}
+    header = ["estimator", "max [m]", "RMS [m]", "mean [m]", "p95 [m]", "rate [Hz]", "wall [s]"]
+    rows = []
+    for name, r in rs.items():
+        if not r.ok:
+            rows.append([name, cell_error(r), "", "", "", "", ""])
+            continue
+        p = r.metrics["windows"][WHOLE]["position"]
+        rows.append([name, fmt(p["max_m"]), fmt(p["rms_m"]), fmt(p["mean_m"]), fmt(p["p95_m"]),
+                     fmt(r.metrics["output_rate_hz"], 1), fmt(r.metrics["wall_time_s"])])
+    sec = report.section(f"Real data: Plaza ({drive.name})")
+    sec.text("UWB ranges to beacons, wheel odometry and gyro; ground truth from the dataset. Ranging is not "
+             "calibrated on this drive's truth (the only Plaza drive): the default range model uses the ranges as "
+             "reported. One drive, so no spread.")
+    sec.table(header, rows)
+    estimates = [r.estimate for r in rs.values() if r.ok]
+    if estimates:
+        sec.figure(plots.trajectories(drive, estimates, folder / "plaza" / "trajectories.png"))
+        sec.figure(plots.error_vs_time(drive, estimates, folder / "plaza" / "error_vs_time.png"))
+    tables["plaza"] = {"rows": rows}
+
