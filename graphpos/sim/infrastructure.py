@@ -1,0 +1,106 @@
+"""RFID tags and roadside units placed along a route's tunnels.
+
+Tag geometry (2-D): tags sit on both tunnel walls, ``width_m / 2`` either
+side of the centreline, at every ``spacing_m`` of centreline arc length from
+the tunnel's entry portal (the first pair at the portal), the same positions
+on both walls. The reader is on the vehicle (its position is the vehicle's;
+height differences are ignored).
+
+Layouts (named subsets of one drive's tags):
+
+- ``dense``: every tag (song2016 §6.2: both walls every 6 m);
+- ``optimized``: song2016 §5.1 groups of four (two per wall, 6 m apart)
+  every ``group_spacing_m`` (30 m); in the paper-* tunnels 16 of the 42 tags;
+- ``groups-60m``, ``groups-90m``, ``groups-120m``: the same groups every 60,
+  90, 120 m, for a layout study. Only groups that fit inside a tunnel are
+  placed, so a short tunnel holds fewer groups.
+
+``group`` in the tag map is the index of a tag's ``optimized`` group (-1 for
+a tag outside every group).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from graphpos.drive import RsuMap, TagMap
+from graphpos.sim.route import Route
+
+#: Group spacings (m) of the layout-study layouts ``groups-<N>m``.
+STUDY_GROUP_SPACINGS_M = (60, 90, 120)
+
+_EPS = 1e-6
+
+
+def place_tags(route: Route, tags: dict[str, Any]) -> TagMap:
+    """Tag map with the ``dense``, ``optimized`` and ``groups-<N>m`` layouts."""
+    spacing, group_len = tags["spacing_m"], tags["group_length_m"]
+    s_list, side_list, offset_list = [], [], []
+    for t0, t1 in route.spans(zone="tunnel"):
+        offsets = np.arange(0.0, t1 - t0 + _EPS, spacing)
+        for off in offsets:
+            for side in (+1, -1):
+                s_list.append(t0 + off)
+                side_list.append(side)
+                offset_list.append((t0, t1, off))
+    n = len(s_list)
+    s = np.array(s_list)
+    side = np.array(side_list, dtype=np.int64)
+    east = np.empty(n)
+    north = np.empty(n)
+    for sd in (+1, -1):
+        m = side == sd
+        east[m], north[m] = route.wall_points(s[m], sd)
+    ids = np.arange(1, n + 1, dtype=np.int64)
+
+    def groups(every_m: float) -> np.ndarray:
+        """Group index per tag for groups every ``every_m`` (-1 outside)."""
+        out = np.full(n, -1, dtype=np.int64)
+        index = 0
+        for t0, t1 in route.spans(zone="tunnel"):
+            start = 0.0
+            while start + group_len <= t1 - t0 + _EPS:
+                members = [i for i, (a, _, off) in enumerate(offset_list) if a == t0 and start - _EPS <= off <= start + group_len + _EPS]
+                out[members] = index
+                index += 1
+                start += every_m
+        return out
+
+    optimized = groups(tags["group_spacing_m"])
+    layouts = {"dense": ids, "optimized": ids[optimized >= 0]}
+    for every in STUDY_GROUP_SPACINGS_M:
+        layouts[f"groups-{every}m"] = ids[groups(float(every)) >= 0]
+    return TagMap(ids, east, north, side, optimized, layouts)
+
+
+def no_tags() -> TagMap:
+    """An empty tag map that still names every layout (a route without tags)."""
+    none = np.zeros(0, dtype=np.int64)
+    names = ["dense", "optimized"] + [f"groups-{every}m" for every in STUDY_GROUP_SPACINGS_M]
+    return TagMap(none, none, none, none, none, {name: none for name in names})
+
+
+def place_rsus(route: Route, rsu: dict[str, Any]) -> RsuMap:
+    """``count`` RSUs evenly along the tunnels (centred in equal shares),
+    alternately on the right and left wall (liu2016 §3: 7 RSUs in the tunnel)."""
+    spans = route.spans(zone="tunnel")
+    total = sum(b - a for a, b in spans)
+    count = int(rsu["count"])
+    if count == 0 or total <= 0:
+        return RsuMap.empty()
+    along = (np.arange(count) + 0.5) * total / count
+    s = np.empty(count)
+    for i, d in enumerate(along):
+        for a, b in spans:
+            if d <= b - a:
+                s[i] = a + d
+                break
+            d -= b - a
+    side = np.where(np.arange(count) % 2 == 0, -1, 1)
+    east, north = np.empty(count), np.empty(count)
+    for sd in (+1, -1):
+        m = side == sd
+        east[m], north[m] = route.wall_points(s[m], sd)
+    return RsuMap(np.arange(1, count + 1), east, north)

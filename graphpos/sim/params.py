@@ -1,0 +1,313 @@
+"""Simulation parameters: the papers' defaults, overrides and TOML config files.
+
+Every number a user may change lives in one nested dict per scenario. A
+``--config`` TOML file (or the ``overrides`` argument of
+:func:`graphpos.sim.simulate`) holds a subset of the same keys; unknown keys,
+wrong types and impossible values raise :class:`~graphpos.errors.ConfigError`
+naming the key and the valid choices.
+
+Where the papers give a number it is used and cited; where they are silent
+the value is the project's choice, marked "(ours)".
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import tomllib
+from pathlib import Path
+from typing import Any
+
+from graphpos.errors import ConfigError, FileFormatError
+from graphpos.sim.rss import ENVIRONMENTS
+
+#: Sensor and motion parameters shared by every scenario.
+_COMMON: dict[str, Any] = {
+    # song2016 §6.1 / song2014 §5.1: the RSS law of the tunnel environment.
+    "rss_environment": "tunnel",
+    "motion": {
+        # Turnaround on the approach road when a drive is longer than one pass
+        # (ours): a right-left-right "bulb" U-turn of this radius and speed.
+        "turnaround_radius_m": 8.0,
+        "turnaround_speed_mps": 3.0,
+        "turnaround_accel_mps2": 1.0,
+    },
+    "truth": {"rate_hz": 100.0},
+    "imu": {
+        # song2016 §6 / song2014 §5: 100 Hz, 1-sigma 0.1 m/s^2 and 0.2 deg/s.
+        "rate_hz": 100.0,
+        "accel_sigma_mps2": 0.1,
+        "gyro_sigma_dps": 0.2,
+        # First-order Gauss-Markov biases, started from their stationary
+        # distribution (ours; MEMS-grade turn-on bias and drift).
+        "accel_bias_sigma_mps2": 0.02,
+        "accel_bias_tau_s": 600.0,
+        "gyro_bias_sigma_dps": 0.05,
+        "gyro_bias_tau_s": 600.0,
+    },
+    "wheel": {
+        # song2016 §6: 100 Hz. Noise and scale error (ours).
+        "rate_hz": 100.0,
+        "sigma_mps": 0.05,
+        "scale_error_sigma": 0.01,
+    },
+    "compass": {
+        # song2016 §6: 10 Hz. Noise (ours) and local disturbances fixed in
+        # space (steel structures): Gaussian bumps along the road (ours).
+        "rate_hz": 10.0,
+        "sigma_deg": 1.0,
+        "disturbances_per_km": 10.0,
+        "disturbance_sigma_deg": 5.0,
+        "disturbance_width_m": 4.0,
+    },
+    "rfid": {
+        # song2016 §6: 1 Hz; heard up to 9 m, reliable within 6 m (the range
+        # limits are those of the RSS environment, graphpos.sim.rss).
+        "rate_hz": 1.0,
+        # Per-reading miss probability within the reliable range (ours);
+        # beyond it detection falls linearly to zero at the maximum range.
+        "read_failure_probability": 0.05,
+        # Occasional wild readings (ours): an extra N(0, outlier_sigma_db).
+        "outlier_probability": 0.02,
+        "outlier_sigma_db": 10.0,
+    },
+    "tags": {
+        # song2016 §6.2: both walls every 6 m; §5.1: groups of four (two per
+        # wall, 6 m apart) every 30 m.
+        "spacing_m": 6.0,
+        "group_spacing_m": 30.0,
+        "group_length_m": 6.0,
+    },
+}
+
+_PAPER_SPEEDS = {
+    # Implied by song2016 Fig. 14 (120 m of tunnel in about 61 s): ~2 m/s.
+    "speed_mps": 2.0,
+    "speed_low_mps": 1.2,
+    "speed_high_mps": 2.8,
+    "lane_change_length_m": 20.0,
+}
+
+_SCENARIO_PARAMS: dict[str, dict[str, Any]] = {
+    # song2016 §6.3.2: straight tunnel 6 m wide, 42 tags -> 120 m; about 7 s
+    # of approach before and 8 s after at 2 m/s (76 s test, 7-68 s inside).
+    "paper-straight": {
+        "route": {
+            "approach_before_m": 14.0,
+            "tunnel_straight_m": 120.0,
+            "approach_after_m": 18.0,
+            "width_m": 6.0,
+            "lane_width_m": 3.0,
+        },
+        "motion": dict(_PAPER_SPEEDS),
+    },
+    # song2016 §6.3.3: straight then curve, 6 m wide, 42 tags. The curve's
+    # radius is not given (ours: 50 m, 60 m of arc, a 69 degree left bend).
+    "paper-comprehensive": {
+        "route": {
+            "approach_before_m": 14.0,
+            "tunnel_straight_m": 60.0,
+            "tunnel_curve_m": 60.0,
+            "curve_radius_m": 50.0,
+            "approach_after_m": 18.0,
+            "width_m": 6.0,
+            "lane_width_m": 3.0,
+        },
+        "motion": dict(_PAPER_SPEEDS),
+    },
+    # song2014 §5: 7.5 m wide (two lanes), tags about 6 m apart, straight +
+    # curve; comprehensive test 76 s, outside 0-5 s and 70-76 s.
+    "paper-imm": {
+        "route": {
+            "approach_before_m": 10.0,
+            "tunnel_straight_m": 60.0,
+            "tunnel_curve_m": 60.0,
+            "curve_radius_m": 50.0,
+            "approach_after_m": 22.0,
+            "width_m": 7.5,
+            "lane_width_m": 3.75,
+        },
+        "motion": dict(_PAPER_SPEEDS),
+    },
+    # liu2016 §3: open area (good GNSS), tunnel with 7 RSUs (no GNSS), street
+    # beside buildings (multipath GNSS), 20 km/h. Lengths are ours.
+    "urban-rsu-gnss": {
+        "route": {
+            "open_m": 300.0,
+            "tunnel_m": 400.0,
+            "turn_radius_m": 30.0,
+            "turn_angle_deg": 90.0,
+            "street_m": 300.0,
+            "width_m": 9.0,
+            "lane_width_m": 3.5,
+        },
+        "motion": {
+            "speed_mps": 20.0 / 3.6,
+            "speed_low_mps": 15.0 / 3.6,
+            "speed_high_mps": 25.0 / 3.6,
+            "lane_change_length_m": 40.0,
+        },
+        "rsu": {
+            "count": 7,
+            "rate_hz": 1.0,
+            "sigma_m": 1.0,
+            "range_m": 80.0,
+        },
+        "gnss": {
+            "rate_hz": 1.0,
+            "zones": {
+                # liu2016 §3: 2DRMS <= 2 m in the open (sigma 0.7 m per axis).
+                "open": {"sigma_m": 0.7, "bias_m": 0.0, "wander_m": 0.2, "wander_tau_s": 60.0, "tail_dof": 0.0},
+                # Multipath beside buildings (ours): biased away from the
+                # buildings, wandering, heavier-tailed (Student t) and wider.
+                "street": {"sigma_m": 2.5, "bias_m": 2.0, "wander_m": 2.0, "wander_tau_s": 30.0, "tail_dof": 3.0},
+            },
+        },
+    },
+    # Beyond the papers: a 3 km road tunnel at 80 km/h. RFID stays at the
+    # papers' 1 Hz by default although at 22 m/s a read happens every 22 m
+    # (raise rfid.rate_hz to study faster readers).
+    "long-tunnel": {
+        "route": {
+            "approach_before_m": 200.0,
+            "tunnel_straight_m": 3000.0,
+            "approach_after_m": 200.0,
+            "width_m": 9.0,
+            "lane_width_m": 3.75,
+        },
+        "motion": {
+            "speed_mps": 80.0 / 3.6,
+            "speed_low_mps": 70.0 / 3.6,
+            "speed_high_mps": 90.0 / 3.6,
+            "lane_change_length_m": 100.0,
+            "turnaround_speed_mps": 5.0,
+            "turnaround_accel_mps2": 1.5,
+        },
+        "gnss": {
+            "rate_hz": 1.0,
+            "zones": {
+                "approach": {"sigma_m": 1.0, "bias_m": 0.0, "wander_m": 0.3, "wander_tau_s": 60.0, "tail_dof": 0.0},
+            },
+        },
+    },
+}
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+#: Sections a scenario has no use for (no RFID tags on liu2016's route).
+_UNUSED = {"urban-rsu-gnss": ("rfid", "tags")}
+
+
+def default_params(scenario: str) -> dict[str, Any]:
+    """The full default parameter dict of a scenario (a fresh copy)."""
+    params = _merge(_COMMON, _SCENARIO_PARAMS[scenario])
+    for section in _UNUSED.get(scenario, ()):
+        del params[section]
+    return params
+
+
+def apply_overrides(params: dict[str, Any], overrides: dict[str, Any] | None, where: str = "") -> dict[str, Any]:
+    """``params`` with ``overrides`` applied, checked key by key.
+
+    Raises
+    ------
+    ConfigError
+        Unknown key (the message lists the valid ones), a section given as a
+        value or a value as a section, or a value of the wrong type.
+    """
+    out = copy.deepcopy(params)
+    for key, value in (overrides or {}).items():
+        path = f"{where}{key}"
+        if key not in out:
+            raise ConfigError(f"unknown parameter '{path}' (valid here: {', '.join(sorted(out))})")
+        current = out[key]
+        if isinstance(current, dict):
+            if not isinstance(value, dict):
+                raise ConfigError(f"parameter '{path}' is a section (keys: {', '.join(sorted(current))}), not a value")
+            out[key] = apply_overrides(current, value, f"{path}.")
+        elif isinstance(value, dict):
+            raise ConfigError(f"parameter '{path}' is a value, not a section")
+        elif isinstance(current, str):
+            if not isinstance(value, str):
+                raise ConfigError(f"parameter '{path}' must be a string, got {value!r}")
+            out[key] = value
+        elif isinstance(current, int) and not isinstance(current, bool):
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ConfigError(f"parameter '{path}' must be a whole number, got {value!r}")
+            out[key] = value
+        else:
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ConfigError(f"parameter '{path}' must be a finite number, got {value!r}")
+            out[key] = float(value)
+    return out
+
+
+def check_params(params: dict[str, Any]) -> None:
+    """Reject impossible values with a message naming the parameter."""
+    env = params["rss_environment"]
+    if env not in ENVIRONMENTS:
+        raise ConfigError(f"unknown rss_environment '{env}' (known: {', '.join(ENVIRONMENTS)})")
+
+    def walk(section: dict[str, Any], where: str) -> None:
+        for key, value in section.items():
+            path = f"{where}{key}"
+            if isinstance(value, dict):
+                walk(value, f"{path}.")
+            elif isinstance(value, str):
+                continue
+            elif key.endswith("_hz") or key.endswith("_mps") or key.endswith("_tau_s") or key.endswith("_radius_m"):
+                if value <= 0:
+                    raise ConfigError(f"parameter '{path}' must be positive, got {value}")
+            elif key.endswith("probability"):
+                if not 0.0 <= value <= 1.0:
+                    raise ConfigError(f"parameter '{path}' must be in [0, 1], got {value}")
+            elif value < 0:
+                raise ConfigError(f"parameter '{path}' must not be negative, got {value}")
+
+    walk(params, "")
+    route, motion = params["route"], params["motion"]
+    if route["lane_width_m"] <= 0 or route["lane_width_m"] > route["width_m"] / 2:
+        raise ConfigError("parameter 'route.lane_width_m' must be positive and at most half of route.width_m")
+    if motion["speed_low_mps"] > motion["speed_high_mps"]:
+        raise ConfigError("parameter 'motion.speed_low_mps' must not exceed motion.speed_high_mps")
+    if motion["turnaround_radius_m"] < route["lane_width_m"]:
+        raise ConfigError("parameter 'motion.turnaround_radius_m' must be at least route.lane_width_m")
+    if "tags" in params:
+        tags = params["tags"]
+        if tags["spacing_m"] <= 0:
+            raise ConfigError("parameter 'tags.spacing_m' must be positive")
+        if tags["group_spacing_m"] < tags["group_length_m"]:
+            raise ConfigError("parameter 'tags.group_spacing_m' must be at least tags.group_length_m")
+
+
+def load_config(path: str | Path) -> dict[str, Any]:
+    """Read a TOML parameter file (the ``--config`` of ``graphpos simulate``).
+
+    Only the file's syntax is checked here; its keys are checked against a
+    scenario's parameters by :func:`graphpos.sim.simulate`.
+
+    Raises
+    ------
+    FileFormatError
+        The file is missing, unreadable or not valid TOML.
+    """
+    p = Path(path)
+    try:
+        data = p.read_bytes()
+    except OSError as exc:
+        raise FileFormatError(f"{p}: cannot read config file ({exc.strerror or exc})") from None
+    try:
+        return tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise FileFormatError(f"{p}: config file is not UTF-8 text") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise FileFormatError(f"{p}: invalid TOML ({exc})") from None

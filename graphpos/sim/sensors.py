@@ -1,0 +1,196 @@
+"""Sensor models: each turns the truth trajectory into one channel's columns.
+
+Every model draws from its own random stream (:func:`stream`), so a change
+to one sensor's parameters leaves the others' samples unchanged. Times are
+``k / rate_hz`` from the drive's start, up to its duration.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from scipy.signal import lfilter
+from scipy.spatial import cKDTree
+
+from graphpos.drive import RsuMap, TagMap
+from graphpos.sim.route import Route
+from graphpos.sim.rss import RssEnvironment
+from graphpos.sim.trajectory import Trajectory
+
+#: Random-stream numbers (never reorder: drives must stay reproducible).
+_STREAMS = {"imu": 1, "wheel": 2, "compass": 3, "rfid": 4, "gnss": 5, "rsu": 6, "latency": 7, "faults": 8}
+
+
+def stream(seed: int, name: str) -> np.random.Generator:
+    """The random generator of one component of a seeded drive."""
+    return np.random.default_rng([seed, _STREAMS[name]])
+
+
+def sample_times(duration_s: float, rate_hz: float) -> np.ndarray:
+    """``k / rate_hz`` for every k with ``k / rate_hz <= duration_s``."""
+    n = int(np.floor(duration_s * rate_hz + 1e-9)) + 1
+    return np.arange(n) / rate_hz
+
+
+def gauss_markov(n: int, dt_s: float, sigma: float, tau_s: float, rng: np.random.Generator) -> np.ndarray:
+    """First-order Gauss-Markov process started from its stationary law.
+
+    ``x[k] = phi x[k-1] + w[k]``, ``phi = exp(-dt/tau)``, ``w ~ N(0, sigma^2 (1 - phi^2))``,
+    so ``x`` has standard deviation ``sigma`` at every step.
+    """
+    phi = np.exp(-dt_s / tau_s)
+    x0 = rng.standard_normal() * sigma
+    w = rng.standard_normal(n) * sigma * np.sqrt(1.0 - phi**2)
+    out, _ = lfilter([1.0], [1.0, -phi], w, zi=[phi * x0])
+    return out
+
+
+def imu(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Two accelerometers (body x, y) and a yaw gyro: truth + bias + white noise."""
+    t = sample_times(duration_s, p["rate_hz"])
+    st = traj.state(t)
+    dt = 1.0 / p["rate_hz"]
+    n = t.size
+    cols = {"t_s": t}
+    for axis in ("x", "y"):
+        bias = gauss_markov(n, dt, p["accel_bias_sigma_mps2"], p["accel_bias_tau_s"], rng)
+        cols[f"accel_{axis}_mps2"] = st[f"accel_{axis}_mps2"] + bias + rng.standard_normal(n) * p["accel_sigma_mps2"]
+    bias = gauss_markov(n, dt, np.deg2rad(p["gyro_bias_sigma_dps"]), p["gyro_bias_tau_s"], rng)
+    cols["yaw_rate_radps"] = st["yaw_rate_radps"] + bias + rng.standard_normal(n) * np.deg2rad(p["gyro_sigma_dps"])
+    return cols
+
+
+def wheel(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random.Generator) -> tuple[dict[str, np.ndarray], float]:
+    """Wheel-encoder speed: truth times (1 + scale error) + white noise.
+
+    Returns the columns and the drawn scale error.
+    """
+    t = sample_times(duration_s, p["rate_hz"])
+    scale = float(rng.standard_normal() * p["scale_error_sigma"])
+    speed = traj.state(t)["speed_mps"] * (1.0 + scale) + rng.standard_normal(t.size) * p["sigma_mps"]
+    return {"t_s": t, "speed_mps": speed}, scale
+
+
+def compass(traj: Trajectory, route: Route, duration_s: float, p: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Heading (yaw from east, wrapped to [-pi, pi)) with white noise and
+    local disturbances fixed along the road (Gaussian bumps, none in turnarounds)."""
+    t = sample_times(duration_s, p["rate_hz"])
+    st = traj.state(t)
+    n_bumps = rng.poisson(p["disturbances_per_km"] * route.length_m / 1000.0)
+    centres = rng.uniform(0.0, route.length_m, n_bumps)
+    amps = np.deg2rad(rng.standard_normal(n_bumps) * p["disturbance_sigma_deg"])
+    width = max(p["disturbance_width_m"], 1e-6)
+    disturbance = np.zeros(t.size)
+    for c, a in zip(centres, amps):
+        disturbance += a * np.exp(-0.5 * ((st["route_s"] - c) / width) ** 2)
+    disturbance[st["turnaround"]] = 0.0
+    yaw = st["yaw_rad"] + disturbance + rng.standard_normal(t.size) * np.deg2rad(p["sigma_deg"])
+    return {"t_s": t, "yaw_rad": (yaw + np.pi) % (2 * np.pi) - np.pi}
+
+
+def rfid(traj: Trajectory, tags: TagMap, env: RssEnvironment, duration_s: float, p: dict[str, Any],
+         rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """One row per heard tag per read: RSS (0-255) from the RSS law, true range.
+
+    Detection probability is ``1 - read_failure_probability`` within the
+    environment's reliable range and falls linearly to zero at its maximum
+    range. The radio reports RSS only, so ``range_m`` is NaN.
+    """
+    t = sample_times(duration_s, p["rate_hz"])
+    empty = {"t_s": np.zeros(0), "tag_id": np.zeros(0), "rss": np.zeros(0), "true_range_m": np.zeros(0)}
+    if len(tags) == 0:
+        return empty
+    offsets_db = env.draw_tag_offsets_db(len(tags), rng)
+    st = traj.state(t)
+    reader = np.column_stack([st["east_m"], st["north_m"]])
+    tree = cKDTree(np.column_stack([tags.east_m, tags.north_m]))
+    hits = tree.query_ball_point(reader, r=env.max_range_m)
+    counts = np.array([len(h) for h in hits])
+    if counts.sum() == 0:
+        return empty
+    read = np.repeat(np.arange(t.size), counts)
+    tag_idx = np.concatenate([np.sort(np.asarray(h, dtype=np.int64)) for h in hits if h])
+    dist = np.hypot(reader[read, 0] - tags.east_m[tag_idx], reader[read, 1] - tags.north_m[tag_idx])
+    fade = np.clip((env.max_range_m - dist) / (env.max_range_m - env.reliable_range_m), 0.0, 1.0)
+    heard = rng.random(dist.size) < (1.0 - p["read_failure_probability"]) * fade
+    read, tag_idx, dist = read[heard], tag_idx[heard], dist[heard]
+    rss = env.sample_rss(dist, rng, offsets_db[tag_idx])
+    wild = rng.random(dist.size) < p["outlier_probability"]
+    rss[wild] = np.clip(np.round(rss[wild] + env.units_per_db * rng.standard_normal(int(wild.sum())) * p["outlier_sigma_db"]), 0, 255)
+    return {"t_s": t[read], "tag_id": tags.tag_id[tag_idx].astype(np.float64), "rss": rss, "true_range_m": dist}
+
+
+def gnss(traj: Trajectory, route: Route, duration_s: float, p: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """Position fixes in the zones that have a GNSS model (none elsewhere).
+
+    Per zone: white noise (Gaussian, or Student t with ``tail_dof`` degrees of
+    freedom scaled to ``sigma_m``), a Gauss-Markov wander (``wander_m``,
+    ``wander_tau_s``) and a constant bias ``bias_m`` to the left of the
+    road's forward direction (multipath off buildings on the right). The
+    reported ``sigma_m`` is the zone's white-noise sigma, as a receiver's
+    own figure would be: it does not know its multipath bias.
+    """
+    t = sample_times(duration_s, p["rate_hz"])
+    st = traj.state(t)
+    zone_names = np.array(route.zones)[st["zone"]]
+    _, _, road_heading, _ = route.centre(st["route_s"])
+    east, north, sigma = np.full(t.size, np.nan), np.full(t.size, np.nan), np.full(t.size, np.nan)
+    dt = 1.0 / p["rate_hz"]
+    for name, z in sorted(p["zones"].items()):
+        m = zone_names == name
+        # Draw for every epoch so a zone's errors do not depend on the others'.
+        if z["tail_dof"] > 0:
+            dof = z["tail_dof"]
+            white = rng.standard_t(dof, (t.size, 2)) * z["sigma_m"] / np.sqrt(dof / (dof - 2.0))
+        else:
+            white = rng.standard_normal((t.size, 2)) * z["sigma_m"]
+        wander = np.column_stack([gauss_markov(t.size, dt, z["wander_m"], z["wander_tau_s"], rng) for _ in range(2)])
+        left = np.column_stack([-np.sin(road_heading), np.cos(road_heading)]) * z["bias_m"]
+        err = white + wander + left
+        east[m] = st["east_m"][m] + err[m, 0]
+        north[m] = st["north_m"][m] + err[m, 1]
+        sigma[m] = z["sigma_m"]
+    keep = np.isfinite(east)
+    return {"t_s": t[keep], "east_m": east[keep], "north_m": north[keep], "sigma_m": sigma[keep]}
+
+
+def rsu(traj: Trajectory, route: Route, rsus: RsuMap, duration_s: float, p: dict[str, Any],
+        rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """RSU readings inside the tunnel: each epoch, from the nearest RSU within
+    ``range_m``, one row with the RSU subsystem's position fix and the range
+    to that RSU, both with 1-sigma ``sigma_m`` (liu2016 §2.1.1)."""
+    t = sample_times(duration_s, p["rate_hz"])
+    cols = {k: np.zeros(0) for k in ("t_s", "rsu_id", "east_m", "north_m", "range_m", "sigma_m")}
+    if len(rsus) == 0:
+        return cols
+    st = traj.state(t)
+    pos = np.column_stack([st["east_m"], st["north_m"]])
+    d = np.hypot(pos[:, :1] - rsus.east_m[None, :], pos[:, 1:] - rsus.north_m[None, :])
+    nearest = np.argmin(d, axis=1)
+    dist = d[np.arange(t.size), nearest]
+    inside = (np.array(route.zones)[st["zone"]] == "tunnel") & ~st["turnaround"] & (dist <= p["range_m"])
+    noise = rng.standard_normal((t.size, 3)) * p["sigma_m"]
+    return {
+        "t_s": t[inside],
+        "rsu_id": rsus.rsu_id[nearest[inside]].astype(np.float64),
+        "east_m": pos[inside, 0] + noise[inside, 0],
+        "north_m": pos[inside, 1] + noise[inside, 1],
+        "range_m": np.abs(dist[inside] + noise[inside, 2]),
+        "sigma_m": np.full(int(inside.sum()), p["sigma_m"]),
+    }
+
+
+def arrival_times(t_s: np.ndarray, latency_s: float | tuple[float, float] | None, rng: np.random.Generator,
+                  per_epoch: bool) -> np.ndarray:
+    """``t_s + delay``: a fixed delay, or uniform in (lo, hi) per reading (per
+    read epoch when ``per_epoch``: a reader delivers one read at once)."""
+    if latency_s is None:
+        return t_s.copy()
+    if isinstance(latency_s, tuple):
+        lo, hi = latency_s
+        if per_epoch:
+            epochs, inverse = np.unique(t_s, return_inverse=True)
+            return t_s + rng.uniform(lo, hi, epochs.size)[inverse]
+        return t_s + rng.uniform(lo, hi, t_s.size)
+    return t_s + float(latency_s)

@@ -1,0 +1,169 @@
+"""Build a simulated drive: trajectory, infrastructure, sensors and windows."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from graphpos.drive import Channel, Drive, RsuMap, Window
+from graphpos.errors import ConfigError
+from graphpos.sim import sensors
+from graphpos.sim.infrastructure import no_tags, place_rsus, place_tags
+from graphpos.sim.params import apply_overrides, check_params, default_params
+from graphpos.sim.rss import ENVIRONMENTS
+from graphpos.sim.scenarios import SCENARIOS, build_route, motion_plan
+from graphpos.sim.trajectory import Trajectory
+
+
+def _check_latency(latency: Any) -> float | tuple[float, float] | None:
+    if latency is None:
+        return None
+    if isinstance(latency, (tuple, list)):
+        if len(latency) != 2:
+            raise ConfigError(f"rfid latency range must be (lo, hi), got {latency!r}")
+        lo, hi = (_check_latency(v) for v in latency)
+        if lo > hi:
+            raise ConfigError(f"rfid latency range has lo {lo} > hi {hi}")
+        return (lo, hi)
+    if isinstance(latency, bool) or not isinstance(latency, (int, float)) or not math.isfinite(latency) or latency < 0:
+        raise ConfigError(f"rfid latency must be a non-negative number of seconds, got {latency!r}")
+    return float(latency)
+
+
+def _runs(t: np.ndarray, mask: np.ndarray, label: str) -> list[Window]:
+    """One window per run of consecutive True samples."""
+    if not mask.any():
+        return []
+    edges = np.diff(mask.astype(np.int8))
+    starts = np.flatnonzero(edges == 1) + 1
+    ends = np.flatnonzero(edges == -1)
+    if mask[0]:
+        starts = np.concatenate([[0], starts])
+    if mask[-1]:
+        ends = np.concatenate([ends, [mask.size - 1]])
+    return [Window(label, float(t[a]), float(t[b])) for a, b in zip(starts, ends)]
+
+
+def _windows(traj: Trajectory, t: np.ndarray, st: dict[str, np.ndarray]) -> tuple[Window, ...]:
+    """``in_tunnel``, ``zone:<name>``, ``turnaround`` and, on routes with a
+    curve, ``straight`` / ``curve`` (the road's shape where the vehicle is,
+    turnarounds excluded)."""
+    route = traj.route
+    zones = np.array(route.zones)[st["zone"]]
+    on_route = ~st["turnaround"]
+    out = _runs(t, (zones == "tunnel") & on_route, "in_tunnel")
+    for name in route.zones:
+        out += _runs(t, zones == name, f"zone:{name}")
+    out += _runs(t, st["turnaround"], "turnaround")
+    if route.spans(curved=True):
+        _, _, _, k = route.centre(st["route_s"])
+        out += _runs(t, on_route & (k == 0), "straight")
+        out += _runs(t, on_route & (k != 0), "curve")
+    return tuple(sorted(out, key=lambda w: (w.start_s, w.label)))
+
+
+def simulate(
+    scenario: str,
+    pattern: str | None = None,
+    seed: int = 0,
+    duration_s: float | None = None,
+    overrides: dict[str, Any] | None = None,
+    rfid_latency_s: float | tuple[float, float] | None = None,
+) -> Drive:
+    """Simulate one drive of a scenario.
+
+    Parameters
+    ----------
+    scenario : str
+        A key of :data:`graphpos.sim.SCENARIOS`.
+    pattern : str, optional
+        Motion pattern (default: the scenario's default pattern).
+    seed : int
+        Random seed (>= 0); the same arguments give the same drive.
+    duration_s : float, optional
+        Drive length. Default: one pass of the route. Longer drives go out
+        and back (turning around on the approach roads) until it is reached.
+    overrides : dict, optional
+        Nested parameter overrides (the keys of a ``--config`` TOML file).
+    rfid_latency_s : float or (lo, hi), optional
+        Delay of RFID and RSU readings: ``arrival_s = t_s + delay``, fixed or
+        uniform in (lo, hi) (per read for RFID, per reading for RSUs).
+
+    Raises
+    ------
+    ConfigError
+        Unknown scenario, pattern or parameter; invalid value.
+    """
+    if scenario not in SCENARIOS:
+        raise ConfigError(f"unknown scenario '{scenario}' (known: {', '.join(SCENARIOS)})")
+    info = SCENARIOS[scenario]
+    pattern = info.default_pattern if pattern is None else pattern
+    if pattern not in info.patterns:
+        raise ConfigError(f"scenario '{scenario}' has no motion pattern '{pattern}' (choose from: {', '.join(info.patterns)})")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise ConfigError(f"seed must be a non-negative whole number, got {seed!r}")
+    seed = int(seed)
+    latency = _check_latency(rfid_latency_s)
+    params = apply_overrides(default_params(scenario), overrides)
+    check_params(params)
+
+    route = build_route(scenario, params["route"])
+    lanes, speeds = motion_plan(pattern, route, params["motion"])
+    m = params["motion"]
+    traj = Trajectory(route, lanes, speeds, m["turnaround_radius_m"], m["turnaround_speed_mps"], m["turnaround_accel_mps2"])
+    if duration_s is None:
+        duration_s = traj.first_pass_time_s
+    if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) or not math.isfinite(duration_s) or duration_s <= 0:
+        raise ConfigError(f"duration must be a positive number of seconds, got {duration_s!r}")
+    duration_s = float(duration_s)
+
+    t_truth = sensors.sample_times(duration_s, params["truth"]["rate_hz"])
+    st = traj.state(t_truth)
+    channels = {
+        "truth": Channel("truth", {"t_s": t_truth, **{k: st[k] for k in (
+            "east_m", "north_m", "v_east_mps", "v_north_mps", "yaw_rad", "yaw_rate_radps", "accel_x_mps2", "accel_y_mps2")}}),
+        "imu": Channel("imu", sensors.imu(traj, duration_s, params["imu"], sensors.stream(seed, "imu"))),
+        "compass": Channel("compass", sensors.compass(traj, route, duration_s, params["compass"], sensors.stream(seed, "compass"))),
+    }
+    wheel_cols, wheel_scale = sensors.wheel(traj, duration_s, params["wheel"], sensors.stream(seed, "wheel"))
+    channels["wheel"] = Channel("wheel", wheel_cols)
+    latency_rng = sensors.stream(seed, "latency")
+
+    tags = place_tags(route, params["tags"]) if "tags" in params else no_tags()
+    if "rfid" in params and len(tags):
+        env = ENVIRONMENTS[params["rss_environment"]]
+        cols = sensors.rfid(traj, tags, env, duration_s, params["rfid"], sensors.stream(seed, "rfid"))
+        cols["arrival_s"] = sensors.arrival_times(cols["t_s"], latency, latency_rng, per_epoch=True)
+        channels["rfid"] = Channel("rfid", cols)
+    rsus = place_rsus(route, params["rsu"]) if "rsu" in params else None
+    if rsus is not None and len(rsus):
+        cols = sensors.rsu(traj, route, rsus, duration_s, params["rsu"], sensors.stream(seed, "rsu"))
+        cols["arrival_s"] = sensors.arrival_times(cols["t_s"], latency, latency_rng, per_epoch=False)
+        channels["rsu"] = Channel("rsu", cols)
+    if "gnss" in params:
+        channels["gnss"] = Channel("gnss", sensors.gnss(traj, route, duration_s, params["gnss"], sensors.stream(seed, "gnss")))
+
+    record = {
+        "scenario": scenario,
+        "pattern": pattern,
+        "seed": seed,
+        "duration_s": duration_s,
+        "rfid_latency_s": list(latency) if isinstance(latency, tuple) else latency,
+        **params,
+        "realised": {
+            "wheel_scale_error": wheel_scale,
+            "route_length_m": route.length_m,
+            "pass_duration_s": traj.first_pass_time_s,
+            "lap_duration_s": traj.lap_time_s,
+        },
+    }
+    return Drive(
+        name=f"{scenario}-{pattern}-seed{seed}",
+        channels=channels,
+        tags=tags,
+        rsus=rsus if rsus is not None else RsuMap.empty(),
+        windows=_windows(traj, t_truth, st),
+        params=record,
+    )
