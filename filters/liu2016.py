@@ -1,0 +1,338 @@
+"""liu2016: RSU/GNSS/DR integrated positioning with a federated Kalman filter.
+
+Three local filters share the "current" statistical acceleration model
+(:mod:`filters.models.kinematic`, liu2016 eq. 1-5, 16), state
+``[x_e, v_e, a_e, x_n, v_n, a_n]``:
+
+* LF1, linear KF on RSU position fixes (eq. 6, 11-15); an RSU reading that
+  carries only a range is used as a range row (EKF), the one addition;
+* LF2, linear KF on GNSS fixes (eq. 7, 11-15);
+* LF3, EKF on the DR observation ``[omega, s]`` — gyro yaw rate and odometer
+  distance over the step (eq. 8-10, 17), with the Jacobian derived in
+  :func:`filters.models.kinematic.dr_observation` (yaw from east, not the
+  paper's heading from north).
+
+The master fuses them (eq. 18, :func:`filters.core.federated.fuse`) and
+shares the information back (eq. 19, ``P_i = P_g / beta_i``,
+``Q_i = Q / beta_i``, ``x_i = x_g``, :func:`filters.core.federated.share_information`).
+Because the reset happens every step and the model is linear, sharing after
+the time update is the same as sharing before it, so one prediction of the
+global state serves the three local filters.
+
+Fault detection and isolation (liu2016 §3.2.2, not given as equations — the
+project's design): every local measurement is tested against the global
+prediction, ``nu^T (H P_g H^T + R)^-1 nu`` against the chi-square quantile
+(``consistency_probability``, degrees of freedom = rows). A failing
+measurement is not used; ``isolate_after`` consecutive failures isolate the
+subsystem, and so does no data for ``no_data_timeout_s``. An isolated
+subsystem takes no part in the fusion and its share ``beta_i`` is
+redistributed over the others in proportion to theirs (they still sum to
+one). It keeps being tested and is restored after ``recover_after``
+consecutive passes (one pass after a no-data isolation). Isolation
+intervals are reported in the diagnostics.
+
+Timing: the filter steps at the output rate (10 Hz); GNSS/RSU fixes of the
+step are applied at its end, the gyro rate and wheel speed of the step are
+averaged (``s = mean speed * T``). The state starts from two position fixes
+(position from the second, velocity from their difference): the paper sets
+the DR start by hand.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from filters.core import ekf, federated
+from filters.models import kinematic as km
+from graphpos.drive import Drive, Measurement
+from graphpos.errors import ConfigError, MissingChannelError
+from graphpos.estimate import Estimate, OutputRow
+from graphpos.estimator import Estimator
+
+SUBSYSTEMS = ("rsu", "gnss", "dr")
+_POS = [km.XE, km.XN]
+
+
+@dataclass
+class Liu2016Config:
+    """Tunables of the liu2016 federated filter.
+
+    Attributes
+    ----------
+    subsystems : tuple of {"rsu", "gnss", "dr"}
+        Local filters to run (one alone gives the single-subsystem baseline).
+    sharing : tuple of 3 float
+        Information-sharing coefficients ``beta_1, beta_2, beta_3`` (RSU,
+        GNSS, DR) before redistribution; normalised over the subsystems run.
+    output_rate_hz : float
+        Filter and output rate.
+    accel_sigma_mps2 : float
+        ``sigma_ae = sigma_an`` of the "current" statistical model.
+    accel_tau_s : float
+        ``tau_ae = tau_an``, correlation time of the manoeuvring acceleration.
+    gyro_sigma_radps : float
+        ``sigma_omega``, gyro noise of the step's mean rate.
+    odometer_sigma_mps : float
+        Wheel-speed 1-sigma; ``sigma_s = odometer_sigma_mps * T``.
+    dr_min_speed_mps : float
+        Below this predicted speed the DR observation (singular at rest) is skipped.
+    consistency_probability : float
+        Chi-square probability of the fault test (1: no fault detection).
+    isolate_after, recover_after : int
+        Consecutive failures that isolate a subsystem, passes that restore it.
+    no_data_timeout_s : float
+        A subsystem silent this long is isolated.
+    init_speed_sigma_mps, init_accel_sigma_mps2 : float
+        Initial 1-sigmas of velocity and acceleration.
+    """
+
+    subsystems: tuple[str, ...] = SUBSYSTEMS
+    sharing: tuple[float, float, float] = (1 / 3, 1 / 3, 1 / 3)
+    output_rate_hz: float = 10.0
+    accel_sigma_mps2: float = 1.0
+    accel_tau_s: float = 5.0
+    gyro_sigma_radps: float = 0.5 * math.pi / 180
+    odometer_sigma_mps: float = 0.1
+    dr_min_speed_mps: float = 1.0
+    consistency_probability: float = 0.999
+    isolate_after: int = 3
+    recover_after: int = 3
+    no_data_timeout_s: float = 3.0
+    init_speed_sigma_mps: float = 2.0
+    init_accel_sigma_mps2: float = 1.0
+
+    def __post_init__(self) -> None:
+        bad = [s for s in self.subsystems if s not in SUBSYSTEMS]
+        if not self.subsystems or bad:
+            raise ConfigError(f"liu2016 subsystems must be chosen from {SUBSYSTEMS}, got {self.subsystems}")
+        if len(self.sharing) != 3 or any(b <= 0 for b in self.sharing):
+            raise ConfigError("sharing needs three positive coefficients (RSU, GNSS, DR)")
+        if not 0.0 < self.consistency_probability <= 1.0:
+            raise ConfigError("consistency_probability must lie in (0, 1]")
+        if self.output_rate_hz <= 0 or self.accel_tau_s <= 0:
+            raise ConfigError("output_rate_hz and accel_tau_s must be positive")
+
+
+@dataclass
+class _Health:
+    """Fault-detection state of one subsystem."""
+
+    isolated: bool = False
+    reason: str = ""
+    fails: int = 0
+    passes: int = 0
+    last_data_s: float = -math.inf
+    intervals: list = field(default_factory=list)
+    rejected: int = 0
+    tested: int = 0
+
+    def isolate(self, t_s: float, reason: str) -> None:
+        if not self.isolated:
+            self.isolated, self.reason = True, reason
+            self.intervals.append([t_s, None, reason])
+            self.passes = 0
+
+    def restore(self, t_s: float) -> None:
+        self.isolated, self.reason, self.fails = False, "", 0
+        self.intervals[-1][1] = t_s
+
+
+class FederatedKf(Estimator):
+    """liu2016 federated KF over RSU fixes, GNSS fixes and DR (gyro + odometer)."""
+
+    name = "fkf"
+    summary = "liu2016 federated KF: RSU + GNSS linear KFs, DR EKF, information sharing, fault isolation (10 Hz)"
+    optional_channels = ("imu", "wheel", "rsu", "gnss")
+
+    @classmethod
+    def default_config(cls) -> Liu2016Config:
+        return Liu2016Config()
+
+    def check(self, drive: Drive) -> None:
+        subs = self.config.subsystems
+        if not (drive.has("rsu") or drive.has("gnss")):
+            raise MissingChannelError(f"{self.name} needs position fixes (rsu or gnss channel) to start; drive '{drive.name}' has neither")
+        if "dr" in subs and not (drive.has("imu") and drive.has("wheel")):
+            raise MissingChannelError(f"{self.name}'s DR subsystem needs the imu and wheel channels, which drive '{drive.name}' lacks")
+
+    # -- online -------------------------------------------------------------
+    def start(self, drive: Drive) -> None:
+        cfg = self.config
+        self._dt = 1.0 / cfg.output_rate_hz
+        self._rsus = {int(i): np.array([e, n]) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
+        self._Q = km.current_statistical_process_noise(self._dt, cfg.accel_sigma_mps2, cfg.accel_sigma_mps2, cfg.accel_tau_s, cfg.accel_tau_s)
+        self._epoch_end: float | None = None
+        self._x: np.ndarray | None = None
+        self._P: np.ndarray | None = None
+        self._init_fixes: list[tuple[float, np.ndarray, float]] = []
+        self._reset_epoch()
+        self._health = {s: _Health() for s in cfg.subsystems}
+        self._rows: list[OutputRow] = []
+
+    def _reset_epoch(self) -> None:
+        self._fixes: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {"rsu": [], "gnss": []}
+        self._gyro: list[float] = []
+        self._speed: list[float] = []
+
+    def process(self, measurement: Measurement) -> list[OutputRow]:
+        t = measurement.arrival_s
+        if self._epoch_end is None:
+            self._epoch_end = math.floor(t / self._dt) * self._dt + self._dt
+        out: list[OutputRow] = []
+        while t > self._epoch_end + 1e-9:
+            row = self._close_epoch(self._epoch_end)
+            if row is not None:
+                out.append(row)
+            self._epoch_end += self._dt
+        v = measurement.values
+        ch = measurement.channel
+        if ch == "imu":
+            self._gyro.append(v["yaw_rate_radps"])
+        elif ch == "wheel":
+            self._speed.append(v["speed_mps"])
+        elif ch in ("rsu", "gnss"):
+            row = self._fix_row(ch, v)
+            if row is not None:
+                self._fixes[ch].append(row)
+        return out
+
+    def finish(self) -> Estimate:
+        if self._epoch_end is not None:
+            self._close_epoch(self._epoch_end)
+        end = self._rows[-1].t_s if self._rows else 0.0
+        diagnostics = {}
+        for name, h in self._health.items():
+            intervals = [[a, b if b is not None else end, r] for a, b, r in h.intervals]
+            diagnostics[name] = {
+                "isolations": intervals,
+                "isolated_s": float(sum(b - a for a, b, _ in intervals)),
+                "tested": h.tested,
+                "rejected": h.rejected,
+            }
+        return Estimate.from_rows(self.name, self._rows, rate_hz=self.config.output_rate_hz, diagnostics={"subsystems": diagnostics})
+
+    # -- measurements -----------------------------------------------------------
+    def _fix_row(self, ch: str, v: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(z, R-diagonal, rsu position or empty)`` of one fix or range reading."""
+        sigma2 = v["sigma_m"] ** 2
+        if math.isfinite(v["east_m"]) and math.isfinite(v["north_m"]):
+            return np.array([v["east_m"], v["north_m"]]), np.array([sigma2, sigma2]), np.zeros(0)
+        if ch == "rsu" and math.isfinite(v.get("range_m", math.nan)):
+            return np.array([v["range_m"]]), np.array([sigma2]), self._rsus[int(v["rsu_id"])]
+        return None
+
+    @staticmethod
+    def _fix_model(anchor: np.ndarray):
+        """``x -> (h(x), H)`` of a position fix (eq. 6-7, ``anchor`` empty) or
+        of a range to the RSU at ``anchor``."""
+        if anchor.size == 0:
+            return lambda x: (km.CS_POSITION_H @ x, km.CS_POSITION_H)
+
+        def rsu_range(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            d = np.array([x[km.XE] - anchor[0], x[km.XN] - anchor[1]])
+            r = max(float(np.hypot(*d)), 1e-6)
+            H = np.zeros((1, 6))
+            H[0, km.XE], H[0, km.XN] = d / r
+            return np.array([r]), H
+
+        return rsu_range
+
+    # -- one step -----------------------------------------------------------------
+    def _close_epoch(self, t_s: float) -> OutputRow | None:
+        fixes, gyro, speed = self._fixes, self._gyro, self._speed
+        self._reset_epoch()
+        if self._x is None:
+            self._try_initialise(t_s, fixes)
+            if self._x is None:
+                return None
+        else:
+            self._step(t_s, fixes, gyro, speed)
+        x, P = self._x, self._P
+        sp = math.hypot(x[km.CVE], x[km.CVN])
+        yaw = math.atan2(x[km.CVN], x[km.CVE]) if sp > self.config.dr_min_speed_mps else (self._rows[-1].yaw_rad if self._rows else 0.0)
+        cov = P[np.ix_(_POS, _POS)].copy()
+        row = OutputRow(t_s, float(x[km.XE]), float(x[km.XN]), float(x[km.CVE]), float(x[km.CVN]), yaw, cov)
+        self._rows.append(row)
+        return row
+
+    def _try_initialise(self, t_s: float, fixes: dict) -> None:
+        cfg = self.config
+        for ch in ("gnss", "rsu"):
+            for z, R, anchor in fixes[ch]:
+                if anchor.size == 0:
+                    self._init_fixes.append((t_s, z, float(R[0])))
+                    break
+        if len(self._init_fixes) < 2 or self._init_fixes[-1][0] - self._init_fixes[0][0] < 0.9:
+            return
+        (t0, z0, r0), (t1, z1, r1) = self._init_fixes[0], self._init_fixes[-1]
+        v = (z1 - z0) / (t1 - t0)
+        self._x = np.array([z1[0], v[0], 0.0, z1[1], v[1], 0.0])
+        sv2 = cfg.init_speed_sigma_mps**2 + (r0 + r1) / (t1 - t0) ** 2
+        self._P = np.diag([r1, sv2, cfg.init_accel_sigma_mps2**2, r1, sv2, cfg.init_accel_sigma_mps2**2])
+        for h in self._health.values():
+            h.last_data_s = t_s
+
+    def _step(self, t_s: float, fixes: dict, gyro: list[float], speed: list[float]) -> None:
+        cfg = self.config
+        x_pred, Phi = km.current_statistical_prediction(self._x, self._dt)  # eq. 16
+        _, P_pred = ekf.predict(x_pred, Phi, self._P, self._Q)  # eq. 12
+        # local measurements of this step: subsystem -> [(z, R diagonal, h)]
+        local: dict[str, list] = {}
+        for ch in ("rsu", "gnss"):
+            if ch in self._health:
+                local[ch] = [(z, R, self._fix_model(anchor)) for z, R, anchor in fixes[ch]]
+        if "dr" in self._health:
+            local["dr"] = []
+            if gyro and speed and math.hypot(x_pred[km.CVE], x_pred[km.CVN]) > cfg.dr_min_speed_mps:
+                z = np.array([np.mean(gyro), np.mean(speed) * self._dt])
+                R = np.array([cfg.gyro_sigma_radps**2, (cfg.odometer_sigma_mps * self._dt) ** 2])
+                local["dr"].append((z, R, lambda x: km.dr_observation(x, self._dt)))  # eq. 8-10
+            elif gyro and speed:
+                self._health["dr"].last_data_s = t_s  # data, unusable at this speed
+        # fault detection against the global prediction
+        accepted: dict[str, list] = {}
+        for name, meas in local.items():
+            h = self._health[name]
+            accepted[name] = []
+            for z, R, model in meas:
+                h.last_data_s = t_s
+                h.tested += 1
+                zp, H = model(x_pred)
+                nu = z - zp
+                S = H @ P_pred @ H.T + np.diag(R)
+                if float(nu @ np.linalg.solve(S, nu)) <= ekf.chi2_threshold(cfg.consistency_probability, z.size):
+                    h.fails = 0
+                    h.passes += 1
+                    if h.isolated and (h.reason == "no data" or h.passes >= cfg.recover_after):
+                        h.restore(t_s)
+                    accepted[name].append((z, R, model))
+                else:
+                    h.rejected += 1
+                    h.passes = 0
+                    h.fails += 1
+                    if h.fails >= cfg.isolate_after:
+                        h.isolate(t_s, "inconsistent")
+            if t_s - h.last_data_s > cfg.no_data_timeout_s:
+                h.isolate(t_s, "no data")
+        # information sharing (eq. 19) over the subsystems not isolated
+        active = [s for s in cfg.subsystems if not self._health[s].isolated]
+        if not active:
+            self._x, self._P = x_pred, P_pred
+            return
+        share = np.array([cfg.sharing[SUBSYSTEMS.index(s)] for s in active])
+        shared = federated.share_information(P_pred, self._Q, share / share.sum())
+        estimates = []
+        for name, (P_i, _) in zip(active, shared):
+            x_i = x_pred
+            for z, R, model in accepted[name]:  # eq. 13-15 / 17
+                zp, H = model(x_i)
+                upd = ekf.update(x_i, P_i, z, zp, H, R)
+                x_i, P_i = upd.x, upd.P
+            estimates.append((x_i, P_i))
+        self._x, self._P = federated.fuse(estimates)  # eq. 18
+
+
+ESTIMATORS = {FederatedKf.name: FederatedKf}
