@@ -56,19 +56,24 @@ def update(
 
     Notes
     -----
-    The covariance is updated in the Joseph form
-    ``(I - K H) P (I - K H)^T + K R K^T``, algebraically eq. 15 and kept
-    symmetric and positive in floating point.
+    The covariance is updated as ``P - K S K^T`` (eq. 15 with
+    ``K = P H^T S^-1``, written so that it stays exactly symmetric). A
+    single row is done without a matrix inverse.
     """
     nu = residual(z, z_pred) if residual is not None else z - z_pred
     nu = np.atleast_1d(nu)
-    R = np.diag(R) if np.ndim(R) == 1 else np.atleast_2d(R)
     PHt = P @ H.T
+    if nu.shape[0] == 1:
+        r = float(R[0, 0]) if np.ndim(R) == 2 else float(np.ravel(R)[0])
+        s = float(H[0] @ PHt[:, 0]) + r
+        k = PHt[:, 0] / s
+        n0 = float(nu[0])
+        return Update(x + k * n0, P - np.outer(k, PHt[:, 0]), n0 * n0 / s)
+    R = np.diag(R) if np.ndim(R) == 1 else np.atleast_2d(R)
     S = H @ PHt + R
     S_inv = np.linalg.inv(S)
     K = PHt @ S_inv
-    I_KH = np.eye(x.shape[0]) - K @ H
-    P_new = I_KH @ P @ I_KH.T + K @ R @ K.T
+    P_new = P - K @ S @ K.T
     return Update(x + K @ nu, 0.5 * (P_new + P_new.T), float(nu @ S_inv @ nu))
 
 

@@ -12,20 +12,13 @@ and return ``(value, jacobian)``; ``jacobian=False`` skips the Jacobian
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 #: Indices into the state vector.
 PE, PN, VE, VN, YAW = 0, 1, 2, 3, 4
 STATE_SIZE = 5
-
-
-def body_to_en(accel_x_mps2, accel_y_mps2, yaw_rad):
-    """Body-frame accelerations to east/north (project convention).
-
-    ``a_e = a_x cos psi - a_y sin psi``, ``a_n = a_x sin psi + a_y cos psi``.
-    """
-    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-    return accel_x_mps2 * c - accel_y_mps2 * s, accel_x_mps2 * s + accel_y_mps2 * c
 
 
 def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = True):
@@ -58,21 +51,31 @@ def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = 
     """
     x = np.asarray(x, dtype=np.float64)
     ax, ay, wz = float(u[0]), float(u[1]), float(u[2])
-    yaw = x[..., YAW]
-    a_e, a_n = body_to_en(ax, ay, yaw)
     half_t2 = 0.5 * dt_s * dt_s
-    out = np.empty_like(x)
-    out[..., PE] = x[..., PE] + x[..., VE] * dt_s + half_t2 * a_e
-    out[..., PN] = x[..., PN] + x[..., VN] * dt_s + half_t2 * a_n
-    out[..., VE] = x[..., VE] + a_e * dt_s
-    out[..., VN] = x[..., VN] + a_n * dt_s
-    out[..., YAW] = yaw + wz * dt_s
-    out[..., 5:] = x[..., 5:]
+    if x.ndim == 1:  # one state: plain floats (the EKFs' hot path)
+        yaw = float(x[YAW])
+        c, s = math.cos(yaw), math.sin(yaw)
+        a_e, a_n = ax * c - ay * s, ax * s + ay * c
+        out = x.copy()
+        out[PE] += x[VE] * dt_s + half_t2 * a_e
+        out[PN] += x[VN] * dt_s + half_t2 * a_n
+        out[VE] += a_e * dt_s
+        out[VN] += a_n * dt_s
+        out[YAW] = yaw + wz * dt_s
+    else:
+        yaw = x[..., YAW]
+        c, s = np.cos(yaw), np.sin(yaw)
+        a_e, a_n = ax * c - ay * s, ax * s + ay * c
+        out = x.copy()
+        out[..., PE] += x[..., VE] * dt_s + half_t2 * a_e
+        out[..., PN] += x[..., VN] * dt_s + half_t2 * a_n
+        out[..., VE] += a_e * dt_s
+        out[..., VN] += a_n * dt_s
+        out[..., YAW] = yaw + wz * dt_s
     if not jacobian:
         return out, None
     if x.ndim != 1:
         raise ValueError("Jacobians are computed for a single state")
-    c, s = np.cos(yaw), np.sin(yaw)
     F = np.eye(x.shape[0])
     F[PE, VE] = F[PN, VN] = dt_s
     # d a_e / d psi = -a_n, d a_n / d psi = a_e

@@ -1,0 +1,124 @@
+"""Commands ``estimators`` (list them) and ``run`` (estimators over one drive).
+
+``graphpos run DRIVE.mcap -e NAME [-e NAME ...] [--layout L] [--range-model F] --out-dir DIR``
+writes into DIR:
+
+- ``NAME.csv`` per estimator (:data:`graphpos.estimate.CSV_COLUMNS`, empty
+  cells where the estimator does not estimate a quantity);
+- ``truth.csv``: the drive's truth at its own rate, same columns;
+- ``run.json``: each estimator's wall time, output rate and diagnostics;
+- ``estimates.mcap``: the drive with every estimate, for Foxglove.
+
+Every estimator runs before anything is written, and each file is written
+through a temporary file and a rename, so a bad input leaves no output.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from graphpos.errors import ConfigError, FileFormatError
+from graphpos.estimate import Estimate
+
+
+def register(sub) -> None:
+    p = sub.add_parser("estimators", help="list the estimators",
+                       description="Every estimator `graphpos run` knows: name, what it is, the channels it "
+                                   "needs and the ones it uses when present.")
+    p.add_argument("--json", action="store_true",
+                   help="print a JSON list of {name, summary, required_channels, optional_channels, config}")
+    p.set_defaults(func=_estimators)
+
+    p = sub.add_parser("run", help="run estimators over a drive",
+                       description="Run one or more estimators over a drive and write their estimates "
+                                   "(NAME.csv), the truth (truth.csv), run.json and estimates.mcap into a folder.")
+    p.add_argument("drive", type=Path, metavar="DRIVE.mcap", help="drive file (see `graphpos simulate`)")
+    p.add_argument("-e", "--estimator", dest="estimators", action="append", required=True, metavar="NAME",
+                   help="estimator name (repeat for several; see `graphpos estimators`)")
+    p.add_argument("--layout", metavar="L", help="use only the tags of this named layout (e.g. optimized)")
+    p.add_argument("--range-model", type=Path, metavar="F",
+                   help="range model JSON (from `graphpos ranging fit`); default: the drive's default model")
+    p.add_argument("--out-dir", type=Path, required=True, metavar="DIR", help="output folder (created if absent)")
+    p.set_defaults(func=_run)
+
+
+def _estimators(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from graphpos.registry import estimator_classes
+
+    rows = []
+    for name, cls in estimator_classes().items():
+        cfg = cls.default_config()
+        rows.append({
+            "name": name,
+            "summary": cls.summary,
+            "required_channels": list(cls.required_channels),
+            "optional_channels": list(cls.optional_channels),
+            "config": json.loads(json.dumps(dataclasses.asdict(cfg), default=str)) if dataclasses.is_dataclass(cfg) else {},
+        })
+    if args.json:
+        print(json.dumps(rows, indent=1))
+        return 0
+    for r in rows:
+        needs = ", ".join(r["required_channels"]) or "-"
+        opt = f" (+ {', '.join(r['optional_channels'])})" if r["optional_channels"] else ""
+        print(f"{r['name']:<18} needs {needs}{opt}")
+        print(f"{'':<18} {r['summary']}")
+    return 0
+
+
+def truth_estimate(drive) -> Estimate:
+    """The drive's truth as an :class:`Estimate` named ``truth`` (for CSV/MCAP output)."""
+    tr = drive.truth
+    return Estimate("truth", tr.t_s, tr.east_m, tr.north_m, tr.v_east_mps, tr.v_north_mps, tr.yaw_rad)
+
+
+def _run(args: argparse.Namespace) -> int:
+    from graphpos.io import read_drive, write_drive
+    from graphpos.io.exports import csv_text, write_atomically
+    from graphpos.ranging import load_range_model
+    from graphpos.registry import make_estimator
+
+    names = list(dict.fromkeys(args.estimators))
+    if "truth" in names:
+        raise ConfigError("'truth' is not an estimator name (truth.csv is always written)")
+    if args.out_dir.exists() and not args.out_dir.is_dir():
+        raise FileFormatError(f"{args.out_dir}: exists and is not a folder")
+    drive = read_drive(args.drive)
+    if args.layout:
+        drive.tags.layout(args.layout)  # a clear error for an unknown layout
+    range_model = load_range_model(args.range_model) if args.range_model else None
+    estimators = [make_estimator(n, layout=args.layout, range_model=range_model) for n in names]
+    estimates = [est.run(drive) for est in estimators]
+
+    outputs: dict[str, str] = {f"{e.name}.csv": csv_text(e) for e in estimates}
+    if drive.has("truth"):
+        outputs["truth.csv"] = csv_text(truth_estimate(drive))
+    summary = {
+        "drive": str(args.drive),
+        "drive_name": drive.name,
+        "layout": args.layout,
+        "range_model": str(args.range_model) if args.range_model else None,
+        "estimators": {
+            e.name: {
+                "wall_time_s": e.wall_time_s,
+                "realtime_factor": drive.duration_s / e.wall_time_s if e.wall_time_s > 0 else None,
+                "outputs": len(e),
+                "rate_hz": e.rate_hz if e.rate_hz == e.rate_hz else None,
+                "has_velocity": e.has_velocity,
+                "diagnostics": e.diagnostics,
+            }
+            for e in estimates
+        },
+    }
+    outputs["run.json"] = json.dumps(summary, indent=1, default=float)
+    args.out_dir.mkdir(parents=True, exist_ok=True)
+    write_drive(args.out_dir / "estimates.mcap", drive, estimates=estimates)
+    for fname, text in outputs.items():
+        write_atomically(args.out_dir / fname, text)
+    for e in estimates:
+        print(f"{e.name:<18} {len(e):6d} outputs  {e.wall_time_s:7.3f} s  -> {args.out_dir / (e.name + '.csv')}")
+    return 0
