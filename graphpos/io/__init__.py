@@ -1,12 +1,13 @@
 """Files in and out: drives and estimates in MCAP, dataset importers.
 
-- :func:`write_drive` / :func:`read_drive` / :func:`read_estimates`: one drive
+- :func:`write_drive` / :func:`read_drive` / :func:`read_estimates` /
+  :func:`read_mcap` (both at once): one drive
   (and optionally estimates) per MCAP file, lossless, viewable in Foxglove
   (:mod:`graphpos.io.mcap_drive` documents the layout).
 - :func:`graphpos.io.plaza.import_plaza`: the CMU Plaza ranging datasets.
 - :func:`graphpos.io.geo.enu_to_geodetic`: local east/north -> lat/lon.
 """
 
-from graphpos.io.mcap_drive import read_drive, read_estimates, write_drive
+from graphpos.io.mcap_drive import read_drive, read_estimates, read_mcap, write_drive
 
-__all__ = ["read_drive", "read_estimates", "write_drive"]
+__all__ = ["read_drive", "read_estimates", "read_mcap", "write_drive"]

@@ -446,7 +446,11 @@ def write_drive(path: str | os.PathLike, drive: Drive, estimates: Iterable[Estim
     base_s = _time_base_s(drive, estimates)
     metadata = _drive_metadata(drive, origin, base_s)
     topics = _drive_topics(drive, origin, base_s) + _estimate_topics(estimates, origin, base_s)
-    folder = path.parent if str(path.parent) else Path(".")
+    folder = path.parent
+    if path.is_dir():
+        raise FileFormatError(f"{path}: cannot write (it is a folder)")
+    if not folder.is_dir():
+        raise FileFormatError(f"{path}: cannot write (folder {folder} does not exist)")
     try:
         fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
     except OSError as exc:
@@ -647,6 +651,8 @@ def _column(rows: list[dict], name: str, where: str) -> np.ndarray:
 def _decode_channel(kind: str, rows: list[dict], where: str) -> Channel:
     columns = {}
     for spec in CHANNEL_SPECS[kind]:
+        if not spec.required and rows and spec.name not in rows[0] and not any(spec.name in row for row in rows):
+            continue  # a field no message has takes the channel's default (NaN; t_s for arrival_s)
         arr = _column(rows, spec.name, where)
         if spec.required:
             missing = np.isnan(arr)
@@ -785,6 +791,13 @@ def _estimate_from(channel: McapChannel, payloads: list[bytes], path: Path) -> E
     return Estimate(name=name, rate_hz=rate_hz, wall_time_s=wall_time_s, diagnostics=diagnostics, **cols)
 
 
+def _estimates_from(contents: _Contents, path: Path) -> list[Estimate]:
+    return [
+        _estimate_from(channel, contents.payloads.get(channel.id, []), path)
+        for _, channel in _graphpos_channels(contents, path, {_ESTIMATE_SCHEMA})
+    ]
+
+
 def read_estimates(path: str | os.PathLike) -> list[Estimate]:
     """The estimates stored in an MCAP file (empty list if it holds none).
 
@@ -794,8 +807,17 @@ def read_estimates(path: str | os.PathLike) -> list[Estimate]:
         As :func:`read_drive`.
     """
     path = Path(path)
+    return _estimates_from(_scan(path), path)
+
+
+def read_mcap(path: str | os.PathLike) -> tuple[Drive, list[Estimate]]:
+    """The drive and the estimates of an MCAP file, reading it once.
+
+    Raises
+    ------
+    FileFormatError, DriveError
+        As :func:`read_drive`.
+    """
+    path = Path(path)
     contents = _scan(path)
-    return [
-        _estimate_from(channel, contents.payloads.get(channel.id, []), path)
-        for _, channel in _graphpos_channels(contents, path, {_ESTIMATE_SCHEMA})
-    ]
+    return _drive_from(contents, path), _estimates_from(contents, path)

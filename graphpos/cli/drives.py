@@ -1,0 +1,109 @@
+"""Commands ``info`` and ``import plaza`` (drive files, ``graphpos.io``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+
+def register(sub) -> None:
+    p = sub.add_parser("info", help="summarise a drive file",
+                       description="Channels (rows, rate, time span), tags and layouts, RSUs, windows, origin, "
+                                   "parameters and stored estimates of a drive MCAP file. rate_hz counts distinct "
+                                   "timestamps per second: (distinct times - 1) / (last - first).")
+    p.add_argument("file", type=Path, metavar="FILE.mcap", help="drive file")
+    p.add_argument("--json", action="store_true",
+                   help="print JSON: duration_s, channels {name: {count, rate_hz, start_s, end_s}}, "
+                        "tags {count, layouts}, rsus, windows, origin, params, estimates")
+    p.set_defaults(func=_info)
+
+    group = sub.add_parser("import", help="import a recorded dataset as a drive file",
+                           description="Convert a recorded dataset into a drive MCAP file.")
+    formats = group.add_subparsers(dest="import_format", required=True, parser_class=type(group))
+    p = formats.add_parser("plaza", help="a CMU Plaza range-only dataset (.mat with GT, DR, TD, TL)",
+                           description="Beacons -> tags, UWB ranges -> rfid range_m (uncorrected), odometry "
+                                       "increments -> wheel speed and yaw rate, GT -> truth. Conventions: "
+                                       "graphpos/io/plaza.py.")
+    p.add_argument("file", type=Path, metavar="FILE.mat", help="the Plaza .mat file")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    p.set_defaults(func=_import_plaza)
+
+
+def _rate_hz(t_s: np.ndarray) -> float | None:
+    times = np.unique(t_s)
+    if times.size < 2 or times[-1] == times[0]:
+        return None
+    return float((times.size - 1) / (times[-1] - times[0]))
+
+
+def drive_summary(path: Path) -> dict[str, Any]:
+    """What ``info --json`` prints for a drive file."""
+    from graphpos.io import read_mcap
+
+    drive, estimates = read_mcap(path)
+    channels = {
+        name: {
+            "count": len(ch),
+            "rate_hz": _rate_hz(ch.t_s),
+            "start_s": float(ch.t_s[0]) if len(ch) else None,
+            "end_s": float(ch.t_s[-1]) if len(ch) else None,
+        }
+        for name, ch in drive.channels.items()
+    }
+    return {
+        "file": str(path),
+        "name": drive.name,
+        "duration_s": drive.duration_s,
+        "start_s": drive.start_s,
+        "end_s": drive.end_s,
+        "channels": channels,
+        "tags": {"count": len(drive.tags), "layouts": {k: int(v.size) for k, v in drive.tags.layouts.items()}},
+        "rsus": {"count": len(drive.rsus)},
+        "windows": [{"label": w.label, "start_s": w.start_s, "end_s": w.end_s} for w in drive.windows],
+        "origin": {"lat_deg": drive.origin.lat_deg, "lon_deg": drive.origin.lon_deg, "alt_m": drive.origin.alt_m},
+        "params": drive.params,
+        "estimates": {e.name: {"count": len(e), "rate_hz": e.rate_hz if np.isfinite(e.rate_hz) else None} for e in estimates},
+    }
+
+
+def _num(value: float | None, fmt: str) -> str:
+    return "-" if value is None else format(value, fmt)
+
+
+def _info(args: argparse.Namespace) -> int:
+    info = drive_summary(args.file)
+    if args.json:
+        print(json.dumps(info, indent=1))
+        return 0
+    print(f"drive     {info['name']}  ({info['file']})")
+    print(f"duration  {info['duration_s']:.3f} s  ({info['start_s']:.3f} .. {info['end_s']:.3f} s)")
+    print(f"{'channel':<10}{'rows':>9}{'rate_hz':>10}{'start_s':>13}{'end_s':>13}")
+    for name, ch in info["channels"].items():
+        print(f"{name:<10}{ch['count']:>9}{_num(ch['rate_hz'], '.2f'):>10}"
+              f"{_num(ch['start_s'], '.3f'):>13}{_num(ch['end_s'], '.3f'):>13}")
+    layouts = ", ".join(f"{k} {v}" for k, v in info["tags"]["layouts"].items())
+    print(f"tags      {info['tags']['count']}  (layouts: {layouts})")
+    print(f"rsus      {info['rsus']['count']}")
+    windows = ", ".join(f"{w['label']} [{w['start_s']:.1f}, {w['end_s']:.1f}] s" for w in info["windows"])
+    print(f"windows   {windows or 'none'}")
+    o = info["origin"]
+    print(f"origin    lat {o['lat_deg']:.6f}, lon {o['lon_deg']:.6f}, alt {o['alt_m']:.1f} m")
+    print(f"params    {json.dumps(info['params'])}")
+    if info["estimates"]:
+        print("estimates " + ", ".join(f"{k} ({v['count']} rows)" for k, v in info["estimates"].items()))
+    return 0
+
+
+def _import_plaza(args: argparse.Namespace) -> int:
+    from graphpos.io import write_drive
+    from graphpos.io.plaza import import_plaza
+
+    drive = import_plaza(args.file)
+    write_drive(args.output, drive)
+    counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
+    print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} beacons ({counts})")
+    return 0

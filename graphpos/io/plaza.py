@@ -1,0 +1,214 @@
+"""Importer of the CMU Plaza range-only datasets (Djugash et al.).
+
+A Plaza ``.mat`` file holds five arrays; their meaning, checked against
+Plaza1 (see ``tests/io/test_plaza.py``):
+
+``GT`` (N, 4) ``[t_s, x_m, y_m, heading_rad]``
+    Ground truth. The heading is measured from the x axis, counter-clockwise:
+    the direction of motion ``atan2(dy, dx)`` matches it within about 0.016
+    rad (median) wherever the robot moves. Taking x as east and y as north,
+    it is the project's yaw. It is stored wrapped to [0, 2pi); it is
+    unwrapped here.
+``DR`` (N-1, 3) ``[t_s, distance_m, heading_change_rad]``
+    Odometry increments from ``GT`` row k to row k+1, stamped with the time
+    of row k+1. The heading changes are exactly the differences of ``GT``'s
+    heading (the dataset's heading comes from the same gyro), so a yaw rate
+    made from them is a near-perfect gyro.
+``DRp`` (N, 4)
+    A dead-reckoned path from the data's authors. Its step lengths equal
+    ``DR``'s distances but its step directions drift away from the heading
+    (0.58 rad by the end of Plaza1), so it is not imported.
+``TD`` (K, 4) ``[t_s, antenna_id, beacon_id, range_m]``
+    UWB ranges from the robot's radio (``antenna_id``, 2 in Plaza1) to a
+    beacon. Rows are not all in time order (Plaza1 has two jumps back of
+    50-64 s); they are sorted by time (stable). Plaza1's ranges read about
+    1.069 x the true distance; the importer does not correct that
+    (calibration is the ranging layer's job).
+``TL`` (B, 3) ``[beacon_id, x_m, y_m]``
+    Surveyed beacon positions.
+
+Times are the recording's own clock in seconds (Plaza1: 3856.9-5790.3 s),
+kept as they are.
+
+The drive has:
+
+- ``truth``: ``GT`` positions and unwrapped heading; velocity by
+  differentiating the positions (``numpy.gradient``, second order, uneven
+  spacing); yaw rate and accelerations NaN.
+- ``wheel``: ``speed_mps = distance / dt`` of each ``DR`` row;
+- ``imu``: ``yaw_rate_radps = heading_change / dt``; accelerometer columns
+  NaN (the dataset has none);
+  both stamped at the middle of their interval, where a mean rate over the
+  interval is the best estimate of the rate (the first row's interval is
+  taken as long as the second's);
+- ``rfid``: one row per ``TD`` row: ``tag_id`` = beacon id, ``range_m``
+  as recorded, ``rss`` NaN, ``true_range_m`` the distance from the ground
+  truth position (interpolated at the reading time; NaN outside ``GT``'s
+  time span) to the beacon — truth, for evaluating ranging;
+- ``tags``: one per ``TL`` row, ``wall_side`` 0, ``group`` -1, layout
+  ``dense`` only.
+
+The geodetic origin defaults to an approximate position of the CMU campus
+(the dataset has no geodetic reference); it only places the track on a map.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import scipy.io
+
+from graphpos.drive import Channel, Drive, GeoOrigin, TagMap
+from graphpos.errors import DriveError, FileFormatError
+
+#: Approximate geodetic position of the Plaza datasets (CMU campus, Pittsburgh).
+PLAZA_ORIGIN = GeoOrigin(lat_deg=40.4435, lon_deg=-79.9435, alt_m=280.0)
+
+#: Arrays read from the file, with their minimum column count and meaning.
+_ARRAYS = {
+    "GT": (4, "[t_s, x_m, y_m, heading_rad]"),
+    "DR": (3, "[t_s, distance_m, heading_change_rad]"),
+    "TD": (4, "[t_s, antenna_id, beacon_id, range_m]"),
+    "TL": (3, "[beacon_id, x_m, y_m]"),
+}
+
+
+def _load(path: Path) -> dict[str, np.ndarray]:
+    try:
+        mat = scipy.io.loadmat(path)
+    except FileNotFoundError:
+        raise FileFormatError(f"{path}: no such file") from None
+    except NotImplementedError:
+        raise FileFormatError(f"{path}: MATLAB v7.3 (HDF5) files are not supported; save it with -v7") from None
+    except OSError as exc:
+        raise FileFormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
+    except Exception as exc:  # noqa: BLE001 - scipy raises many types on a file that is not a .mat
+        raise FileFormatError(f"{path}: not a readable MATLAB .mat file ({type(exc).__name__}: {exc})") from None
+    arrays = {}
+    for name, (min_cols, meaning) in _ARRAYS.items():
+        if name not in mat:
+            found = sorted(k for k in mat if not k.startswith("__"))
+            raise FileFormatError(f"{path}: no array '{name}' {meaning} (found: {', '.join(found) or 'none'}); not a Plaza dataset?")
+        arr = mat[name]
+        min_rows = 2 if name in ("GT", "DR") else 1
+        if not (
+            isinstance(arr, np.ndarray)
+            and arr.ndim == 2
+            and arr.shape[1] >= min_cols
+            and arr.shape[0] >= min_rows
+            and np.issubdtype(arr.dtype, np.number)
+            and not np.iscomplexobj(arr)
+        ):
+            shape = getattr(arr, "shape", None)
+            raise FileFormatError(
+                f"{path}: array '{name}' has shape {shape} and type {getattr(arr, 'dtype', type(arr).__name__)}; "
+                f"expected a real matrix with at least {min_rows} rows of {min_cols} columns {meaning}"
+            )
+        arrays[name] = np.asarray(arr[:, :min_cols], dtype=np.float64)
+    return arrays
+
+
+def _rates(dr: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mid-interval times, speed and yaw rate of the odometry increments."""
+    t_end = dr[:, 0]
+    dt = np.diff(t_end)
+    if not np.all(dt > 0):
+        row = int(np.argmax(~(dt > 0))) + 1
+        raise FileFormatError(f"{path}: array 'DR' row {row}: time {t_end[row]!r} does not increase")
+    dt = np.r_[dt[0], dt]
+    return t_end - dt / 2, dr[:, 1] / dt, dr[:, 2] / dt
+
+
+def _truth(gt: np.ndarray, path: Path) -> Channel:
+    t = gt[:, 0]
+    if not np.all(np.diff(t) > 0):
+        row = int(np.argmax(~(np.diff(t) > 0))) + 1
+        raise FileFormatError(f"{path}: array 'GT' row {row}: time {t[row]!r} does not increase")
+    east, north = gt[:, 1], gt[:, 2]
+    n = t.size
+    return Channel(
+        "truth",
+        {
+            "t_s": t,
+            "east_m": east,
+            "north_m": north,
+            "v_east_mps": np.gradient(east, t),
+            "v_north_mps": np.gradient(north, t),
+            "yaw_rad": np.unwrap(gt[:, 3]),
+            "yaw_rate_radps": np.full(n, np.nan),
+            "accel_x_mps2": np.full(n, np.nan),
+            "accel_y_mps2": np.full(n, np.nan),
+        },
+    )
+
+
+def _true_ranges(t_s: np.ndarray, beacon_xy: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    east = np.interp(t_s, gt[:, 0], gt[:, 1])
+    north = np.interp(t_s, gt[:, 0], gt[:, 2])
+    true = np.hypot(east - beacon_xy[:, 0], north - beacon_xy[:, 1])
+    true[(t_s < gt[0, 0]) | (t_s > gt[-1, 0])] = np.nan
+    return true
+
+
+def import_plaza(path: str | os.PathLike, origin: GeoOrigin = PLAZA_ORIGIN) -> Drive:
+    """Read a CMU Plaza ``.mat`` file as a drive (conventions: module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        The ``.mat`` file (MATLAB v5/v7 format) with arrays GT, DR, TD, TL.
+    origin : GeoOrigin
+        Geodetic origin of the dataset's x/y frame, for map views.
+
+    Raises
+    ------
+    FileFormatError
+        Missing or unreadable file; an array missing, of the wrong shape or
+        with times that do not increase.
+    DriveError
+        Values the drive model rejects (non-finite, implausible, a range to
+        a beacon not in TL), naming the file, channel and row.
+    """
+    path = Path(path)
+    arrays = _load(path)
+    gt, dr, td, tl = arrays["GT"], arrays["DR"], arrays["TD"], arrays["TL"]
+    order = np.argsort(td[:, 0], kind="stable")
+    td = td[order]
+    try:
+        tags = TagMap(tl[:, 0], tl[:, 1], tl[:, 2], np.zeros(len(tl)), np.full(len(tl), -1))
+        truth = _truth(gt, path)
+        t_mid, speed, yaw_rate = _rates(dr, path)
+        known = np.isin(td[:, 2], tags.tag_id)
+        if not known.all():
+            row = int(order[np.argmax(~known)])
+            raise FileFormatError(f"{path}: array 'TD' row {row}: beacon {td[np.argmax(~known), 2]:g} is not in 'TL'")
+        beacon_xy = tags.positions(td[:, 2].astype(np.int64))
+        nan = np.full(len(td), np.nan)
+        channels = {
+            "imu": Channel("imu", {"t_s": t_mid, "accel_x_mps2": np.full(t_mid.size, np.nan), "accel_y_mps2": np.full(t_mid.size, np.nan), "yaw_rate_radps": yaw_rate}),
+            "wheel": Channel("wheel", {"t_s": t_mid, "speed_mps": speed}),
+            "rfid": Channel("rfid", {
+                "t_s": td[:, 0],
+                "tag_id": td[:, 2],
+                "rss": nan,
+                "range_m": td[:, 3],
+                "true_range_m": _true_ranges(td[:, 0], beacon_xy, gt),
+            }),
+            "truth": truth,
+        }
+        params = {
+            "source": "plaza",
+            "file": path.name,
+            "antenna_ids": sorted({float(a) for a in np.unique(td[:, 1]).tolist()}),
+            "range_rows_reordered": int(np.count_nonzero(order != np.arange(order.size))),
+        }
+        return Drive(name=path.stem, channels=channels, tags=tags, origin=origin, params=params)
+    except DriveError as exc:
+        # name the source array and its row (rfid rows were sorted by time)
+        array = {"truth": "GT", "imu": "DR", "wheel": "DR", "rfid": "TD", "tags": "TL"}.get(exc.channel)
+        if array is None or exc.row is None:
+            raise exc.with_source(str(path)) from None
+        row = int(order[exc.row]) if exc.channel == "rfid" else exc.row
+        raise DriveError(exc.channel, exc.row, f"{exc.reason} (array '{array}' row {row})", str(path)) from None
