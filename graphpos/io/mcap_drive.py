@@ -60,7 +60,6 @@ from __future__ import annotations
 import json
 import os
 import struct
-import tempfile
 import zlib
 from io import BytesIO
 from pathlib import Path
@@ -78,6 +77,7 @@ from graphpos import __version__
 from graphpos.drive import CHANNEL_SPECS, Channel, Drive, GeoOrigin, RsuMap, TagMap, Window
 from graphpos.errors import ConfigError, DriveError, FileFormatError, GraphposError
 from graphpos.estimate import Estimate
+from graphpos.io.files import atomic_output, read_input
 from graphpos.io.geo import enu_to_geodetic
 
 #: Format written in the ``graphpos.drive`` metadata record.
@@ -446,28 +446,8 @@ def write_drive(path: str | os.PathLike, drive: Drive, estimates: Iterable[Estim
     base_s = _time_base_s(drive, estimates)
     metadata = _drive_metadata(drive, origin, base_s)
     topics = _drive_topics(drive, origin, base_s) + _estimate_topics(estimates, origin, base_s)
-    folder = path.parent
-    if path.is_dir():
-        raise FileFormatError(f"{path}: cannot write (it is a folder)")
-    if not folder.is_dir():
-        raise FileFormatError(f"{path}: cannot write (folder {folder} does not exist)")
-    try:
-        fd, tmp_name = tempfile.mkstemp(dir=folder, prefix=f".{path.name}.", suffix=".tmp")
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot write ({exc.strerror or exc})") from None
-    try:
-        with os.fdopen(fd, "wb") as stream:
-            _write_mcap(stream, metadata, topics)
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp_name, 0o666 & ~umask)
-        os.replace(tmp_name, path)
-    except OSError as exc:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise FileFormatError(f"{path}: cannot write ({exc.strerror or exc})") from None
-    except BaseException:
-        Path(tmp_name).unlink(missing_ok=True)
-        raise
+    with atomic_output(path) as stream:
+        _write_mcap(stream, metadata, topics)
 
 
 def _write_mcap(stream, metadata: dict[str, str], topics: list[_Topic]) -> None:
@@ -592,16 +572,7 @@ def _chunk_data(body: memoryview) -> bytes:
 
 def _scan(path: Path) -> _Contents:
     """Every record of an MCAP file, or FileFormatError."""
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise FileFormatError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise FileFormatError(f"{path}: is a folder, not an MCAP file") from None
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    if not raw:
-        raise FileFormatError(f"{path}: empty file")
+    raw = read_input(path)
     if not raw.startswith(_MAGIC):
         raise FileFormatError(f"{path}: not an MCAP file (no MCAP magic bytes at the start)")
     contents = _Contents()

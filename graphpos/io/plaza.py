@@ -54,6 +54,7 @@ The geodetic origin defaults to an approximate position of the CMU campus
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -62,6 +63,7 @@ import scipy.io
 
 from graphpos.drive import Channel, Drive, GeoOrigin, TagMap
 from graphpos.errors import DriveError, FileFormatError
+from graphpos.io.files import read_input
 
 #: Approximate geodetic position of the Plaza datasets (CMU campus, Pittsburgh).
 PLAZA_ORIGIN = GeoOrigin(lat_deg=40.4435, lon_deg=-79.9435, alt_m=280.0)
@@ -76,14 +78,11 @@ _ARRAYS = {
 
 
 def _load(path: Path) -> dict[str, np.ndarray]:
+    raw = read_input(path)
     try:
-        mat = scipy.io.loadmat(path)
-    except FileNotFoundError:
-        raise FileFormatError(f"{path}: no such file") from None
+        mat = scipy.io.loadmat(io.BytesIO(raw))
     except NotImplementedError:
         raise FileFormatError(f"{path}: MATLAB v7.3 (HDF5) files are not supported; save it with -v7") from None
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
     except Exception as exc:  # noqa: BLE001 - scipy raises many types on a file that is not a .mat
         raise FileFormatError(f"{path}: not a readable MATLAB .mat file ({type(exc).__name__}: {exc})") from None
     arrays = {}

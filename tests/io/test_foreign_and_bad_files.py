@@ -90,7 +90,7 @@ def test_missing_empty_folder_random(tmp_path):
             path.write_bytes(content)
         with pytest.raises(FileFormatError, match=rf"{name}: {reason}"):
             read_drive(path)
-    with pytest.raises(FileFormatError, match="is a folder"):
+    with pytest.raises(FileFormatError, match="is a folder, not a file"):
         read_drive(tmp_path)
 
 

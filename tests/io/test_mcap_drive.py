@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -119,6 +120,9 @@ def test_write_is_atomic_and_replaces(tmp_path, drive):
     write_drive(path, drive)
     assert_drives_equal(drive, read_drive(path))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["d.mcap"]
+    umask = os.umask(0)
+    os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~umask  # not the temporary file's 0600
 
 
 def test_failed_write_leaves_nothing(tmp_path, drive):
