@@ -67,9 +67,10 @@ def result_record(r: JobResult) -> dict[str, Any]:
     }
 
 
-def cell_error(r: JobResult) -> str:
-    """What a table cell says for a run that gave no figures."""
-    return f"n/a: {r.error}" if r.not_applicable else f"FAILED: {r.error}"
+def cell_error(r: JobResult, width: int = 90) -> str:
+    """What a table cell says for a run that gave no figures (the full message is in Failures and results.json)."""
+    text = f"n/a: {r.error}" if r.not_applicable else f"FAILED: {r.error}"
+    return text if len(text) <= width else text[: width - 1] + "…"
 
 
 def window_table(results: list[JobResult], window: str) -> tuple[list[str], list[list[str]]]:

@@ -232,8 +232,9 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
         tables[exp.key] = {"title": exp.title, "scenario": exp.scenario, "pattern": exp.pattern,
                            "window": exp.window, "seeds": list(range(n_seeds)), "rows": record}
         first = srcs[0]
-        if first not in plotted:
-            plotted.add(first)
+        plot_key = (first, tuple((r.estimator, r.layout) for r in exp.all_rows()))
+        if plot_key not in plotted:  # song2014 Tables 4 and 5/6 show the same runs in two windows
+            plotted.add(plot_key)
             estimates = [res[(first, r.estimator, r.layout)].estimate for r in exp.all_rows()
                          if res[(first, r.estimator, r.layout)].ok]
             if estimates:
