@@ -33,9 +33,8 @@ intervals are reported in the diagnostics.
 
 Timing: the filter steps at the output rate (10 Hz); GNSS/RSU fixes of the
 step are applied at its end, the gyro rate and wheel speed of the step are
-averaged (``s = mean speed * T``). The state starts from two position fixes
-(position from the second, velocity from their difference): the paper sets
-the DR start by hand.
+averaged (``s = mean speed * T``). The state starts from the drive's initial
+pose, like every filter of the project.
 """
 
 from __future__ import annotations
@@ -45,6 +44,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from filters.base import InitialPose
 from filters.core import ekf, federated
 from filters.models import kinematic as km
 from graphpos.drive import Drive, Measurement
@@ -76,7 +76,10 @@ class Liu2016Config:
     gyro_sigma_radps : float
         ``sigma_omega``, gyro noise of the step's mean rate.
     odometer_sigma_mps : float
-        Wheel-speed 1-sigma; ``sigma_s = odometer_sigma_mps * T``.
+        Wheel-speed 1-sigma; ``sigma_s = odometer_sigma_mps * T``. It covers
+        the wheel's scale error (about 1 %, correlated from step to step),
+        not only its white noise: a smaller value lets a scale error drag
+        the fused track.
     dr_min_speed_mps : float
         Below this predicted speed the DR observation (singular at rest) is skipped.
     consistency_probability : float
@@ -85,8 +88,10 @@ class Liu2016Config:
         Consecutive failures that isolate a subsystem, passes that restore it.
     no_data_timeout_s : float
         A subsystem silent this long is isolated.
-    init_speed_sigma_mps, init_accel_sigma_mps2 : float
-        Initial 1-sigmas of velocity and acceleration.
+    init_position_sigma_m, init_speed_sigma_mps, init_accel_sigma_mps2 : float
+        Initial 1-sigmas around the starting pose.
+    init_unknown_speed_sigma_mps : float
+        Initial velocity 1-sigma when the start comes from GNSS (no velocity).
     """
 
     subsystems: tuple[str, ...] = SUBSYSTEMS
@@ -95,13 +100,15 @@ class Liu2016Config:
     accel_sigma_mps2: float = 1.0
     accel_tau_s: float = 5.0
     gyro_sigma_radps: float = 0.5 * math.pi / 180
-    odometer_sigma_mps: float = 0.1
+    odometer_sigma_mps: float = 0.3
     dr_min_speed_mps: float = 1.0
     consistency_probability: float = 0.999
     isolate_after: int = 3
     recover_after: int = 3
     no_data_timeout_s: float = 3.0
-    init_speed_sigma_mps: float = 2.0
+    init_position_sigma_m: float = 0.5
+    init_speed_sigma_mps: float = 0.3
+    init_unknown_speed_sigma_mps: float = 10.0
     init_accel_sigma_mps2: float = 1.0
 
     def __post_init__(self) -> None:
@@ -167,7 +174,7 @@ class FederatedKf(Estimator):
         self._epoch_end: float | None = None
         self._x: np.ndarray | None = None
         self._P: np.ndarray | None = None
-        self._init_fixes: list[tuple[float, np.ndarray, float]] = []
+        self._drive = drive
         self._reset_epoch()
         self._health = {s: _Health() for s in cfg.subsystems}
         self._rows: list[OutputRow] = []
@@ -241,13 +248,11 @@ class FederatedKf(Estimator):
         return rsu_range
 
     # -- one step -----------------------------------------------------------------
-    def _close_epoch(self, t_s: float) -> OutputRow | None:
+    def _close_epoch(self, t_s: float) -> OutputRow:
         fixes, gyro, speed = self._fixes, self._gyro, self._speed
         self._reset_epoch()
         if self._x is None:
-            self._try_initialise(t_s, fixes)
-            if self._x is None:
-                return None
+            self._initialise(t_s)
         else:
             self._step(t_s, fixes, gyro, speed)
         x, P = self._x, self._P
@@ -258,20 +263,16 @@ class FederatedKf(Estimator):
         self._rows.append(row)
         return row
 
-    def _try_initialise(self, t_s: float, fixes: dict) -> None:
+    def _initialise(self, t_s: float) -> None:
+        """The drive's initial pose (:class:`filters.base.InitialPose`; the
+        paper sets the DR start by hand). From GNSS the velocity is unknown:
+        it starts at 0 with ``init_unknown_speed_sigma_mps``."""
         cfg = self.config
-        for ch in ("gnss", "rsu"):
-            for z, R, anchor in fixes[ch]:
-                if anchor.size == 0:
-                    self._init_fixes.append((t_s, z, float(R[0])))
-                    break
-        if len(self._init_fixes) < 2 or self._init_fixes[-1][0] - self._init_fixes[0][0] < 0.9:
-            return
-        (t0, z0, r0), (t1, z1, r1) = self._init_fixes[0], self._init_fixes[-1]
-        v = (z1 - z0) / (t1 - t0)
-        self._x = np.array([z1[0], v[0], 0.0, z1[1], v[1], 0.0])
-        sv2 = cfg.init_speed_sigma_mps**2 + (r0 + r1) / (t1 - t0) ** 2
-        self._P = np.diag([r1, sv2, cfg.init_accel_sigma_mps2**2, r1, sv2, cfg.init_accel_sigma_mps2**2])
+        pose = InitialPose(self._drive, t_s)
+        self._x = np.array([pose.east_m, pose.v_east_mps, 0.0, pose.north_m, pose.v_north_mps, 0.0])
+        sv = cfg.init_speed_sigma_mps if pose.from_truth else cfg.init_unknown_speed_sigma_mps
+        sp, sa = cfg.init_position_sigma_m, cfg.init_accel_sigma_mps2
+        self._P = np.diag(np.square([sp, sv, sa, sp, sv, sa]))
         for h in self._health.values():
             h.last_data_s = t_s
 

@@ -4,6 +4,9 @@ The paper's equations (2)-(13) were images and are lost from the extraction;
 this is their reconstruction in the standard forms ``../shared/papers/README.md``
 prescribes. At each RFID scan ``k`` (1 Hz):
 
+Readings arrive as scans (one ``t_s``, distances and sigmas from the
+estimator's RangeModel, :class:`filters.base.FilterEstimator`).
+
 1. **Local LMS filters** (eq. 2-6, ``i = 1..N``), one transversal filter of
    ``m`` taps per detected tag: input ``v_i(k) = [r_i(k), r_i(k-1), ...,
    r_i(k-m+1)]`` (the tag's ranges from the RangeModel; missing taps of a
@@ -46,10 +49,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from filters.core import ekf
-from graphpos.drive import Drive, Measurement
+from filters.base import FilterEstimator
+from graphpos.drive import Drive
 from graphpos.errors import ConfigError
-from graphpos.estimate import Estimate, OutputRow
-from graphpos.estimator import Estimator
+from graphpos.estimate import OutputRow
 
 
 @dataclass
@@ -68,8 +71,6 @@ class LmsFederatedConfig:
         Normalised-LMS step of the global filter.
     min_tags : int
         Fewest tags in a scan for a fix.
-    scan_window_s : float
-        Readings within this time of a scan's first reading form one scan.
     tag_memory_s : float
         A tag unheard for longer restarts its local filter.
     track_memory_s : float
@@ -91,7 +92,6 @@ class LmsFederatedConfig:
     global_taps: int = 3
     global_step: float = 0.05
     min_tags: int = 3
-    scan_window_s: float = 0.5
     tag_memory_s: float = 3.0
     track_memory_s: float = 3.0
     gauss_newton_iterations: int = 6
@@ -143,14 +143,12 @@ class LmsFederatedPositioner:
     """The LMS-federated filter as an online object, reusable by the fusion
     filters (which take its fixes as their ``x_RFID, y_RFID`` observation).
 
-    Feed readings with :meth:`add`; a scan is complete when :meth:`advance`
-    is called with a time past its window (or at :meth:`flush`).
+    Feed it one RFID scan at a time (:meth:`scan`). Local filters are keyed
+    by tag position (a tag is where it is surveyed).
     """
 
     config: LmsFederatedConfig
-    tags_en_m: dict[int, np.ndarray]
-    _tags: dict[int, _TagFilter] = field(default_factory=dict)
-    _scan: list[tuple[float, int, float, float]] = field(default_factory=list)
+    _tags: dict[tuple[float, float], _TagFilter] = field(default_factory=dict)
     _track: deque = field(default_factory=deque)
     _last_fix_t_s: float = -np.inf
     _last_fix: np.ndarray | None = None
@@ -161,51 +159,29 @@ class LmsFederatedPositioner:
         self._global_w = line_fit_weights(self.config.global_taps)
         self._track = deque(maxlen=self.config.global_taps)
 
-    def add(self, t_s: float, tag_id: int, range_m: float, sigma_m: float) -> Fix | None:
-        """Take one reading; returns the fix of the previous scan if this
-        reading starts a new one."""
-        fix = self.advance(t_s)
-        if np.isfinite(range_m) and np.isfinite(sigma_m):
-            self._scan.append((t_s, tag_id, float(range_m), float(max(sigma_m, 1e-3))))
-        return fix
-
-    def advance(self, t_s: float) -> Fix | None:
-        """Close the open scan if ``t_s`` is past its window."""
-        if self._scan and t_s > self._scan[0][0] + self.config.scan_window_s:
-            return self.flush()
-        return None
-
-    def flush(self) -> Fix | None:
-        """Close the open scan now."""
-        if not self._scan:
-            return None
-        scan, self._scan = self._scan, []
-        return self._process_scan(scan)
-
-    # -- one scan -------------------------------------------------------------
-    def _process_scan(self, scan: list[tuple[float, int, float, float]]) -> Fix | None:
-        cfg = self.config
-        t_s = max(r[0] for r in scan)
-        by_tag: dict[int, list[tuple[float, float]]] = {}
-        for _, tag, r, s in scan:
-            by_tag.setdefault(tag, []).append((r, s))
-        ids = sorted(by_tag)
-        if len(ids) < cfg.min_tags:
+    def scan(self, t_s: float, tags_en_m: np.ndarray, ranges_m: np.ndarray, sigmas_m: np.ndarray) -> Fix | None:
+        """Process one scan (the usable readings of the tags heard at ``t_s``);
+        returns its fix, or None with fewer than ``min_tags`` tags."""
+        if len(ranges_m) < self.config.min_tags:
             self.scans_without_fix += 1
             return None
-        ranges = np.array([np.mean([r for r, _ in by_tag[i]]) for i in ids])
-        sigmas = np.array([np.mean([s for _, s in by_tag[i]]) for i in ids])
-        tags = np.array([self.tags_en_m[i] for i in ids])
+        return self._process_scan(t_s, np.asarray(tags_en_m, dtype=np.float64), np.asarray(ranges_m, dtype=np.float64),
+                                  np.maximum(np.asarray(sigmas_m, dtype=np.float64), 1e-3))
+
+    # -- one scan -------------------------------------------------------------
+    def _process_scan(self, t_s: float, tags: np.ndarray, ranges: np.ndarray, sigmas: np.ndarray) -> Fix:
+        cfg = self.config
+        keys = [(float(e), float(n)) for e, n in tags]
 
         # 1. local LMS filters (eq. 2-6)
-        filters = [self._local_filter(i, r, t_s) for i, r in zip(ids, ranges)]
+        filters = [self._local_filter(k, r, t_s) for k, r in zip(keys, ranges)]
         inputs = np.array([np.asarray(f.history) for f in filters])
         smoothed = np.einsum("ij,ij->i", inputs, np.array([f.weights for f in filters]))
         coeff = np.array([f.coefficient for f in filters])
 
         # 2. least squares weighted by the coefficients, tags failing the
         #    consistency test isolated
-        n = len(ids)
+        n = len(ranges)
         x_ls, coeff, info = self._robust_solve(tags, smoothed, sigmas, coeff, self._initial_guess(tags, t_s))
 
         # 3. global LMS filter (eq. 7)
@@ -240,7 +216,7 @@ class LmsFederatedPositioner:
         cov = np.linalg.inv(info) * float(np.sum(w_global**2))
         return Fix(t_s, float(x_rfid[0]), float(x_rfid[1]), cov, int(np.count_nonzero(coeff > 1e-3 / n)), float(coeff.min() * n))
 
-    def _local_filter(self, tag: int, range_m: float, t_s: float) -> _TagFilter:
+    def _local_filter(self, tag: tuple[float, float], range_m: float, t_s: float) -> _TagFilter:
         cfg = self.config
         f = self._tags.get(tag)
         if f is None or t_s - f.last_t_s > cfg.tag_memory_s:
@@ -328,64 +304,28 @@ class LmsFederatedPositioner:
         return x, info
 
 
-class LmsFederated(Estimator):
-    """song2014 §3.3 LMS-federated RFID positioning (1 Hz, no velocity)."""
+class LmsFederated(FilterEstimator):
+    """song2014 §3.3 LMS-federated RFID positioning (one fix per scan, no velocity)."""
 
     name = "lms-federated"
-    summary = "song2014 RFID-only LMS-federated filter: per-tag LMS, weighted LS, global LMS, feedback (1 Hz)"
+    summary = "song2014 RFID-only LMS-federated filter: per-tag LMS, weighted LS, global LMS, feedback (per scan)"
     required_channels = ("rfid",)
+    output_on_scan = True
 
     @classmethod
     def default_config(cls) -> LmsFederatedConfig:
         return LmsFederatedConfig()
 
-    def start(self, drive: Drive) -> None:
-        self._positioner, self._ranges = make_positioner(self.config, drive, self.range_model)
-        self._rows: list[OutputRow] = []
+    def _init_filter(self, drive: Drive, t0_s: float) -> None:
+        self._positioner = LmsFederatedPositioner(self.config)
 
-    def process(self, measurement: Measurement) -> list[OutputRow]:
-        if measurement.channel != "rfid":
-            return []
-        fix = self._positioner.add(measurement.t_s, *self._ranges(measurement))
-        return self._emit(fix)
-
-    def _emit(self, fix: Fix | None) -> list[OutputRow]:
+    def _on_scan(self, t_s: float, tags: np.ndarray, ranges: np.ndarray, sigmas: np.ndarray) -> None:
+        fix = self._positioner.scan(t_s, tags, ranges, sigmas)
         if fix is None:
-            return []
-        row = OutputRow(fix.t_s, fix.east_m, fix.north_m, cov_en_m2=fix.cov_en_m2)
-        self._rows.append(row)
-        return [row]
-
-    def finish(self) -> Estimate:
-        self._emit(self._positioner.flush())
-        return Estimate.from_rows(
-            self.name,
-            self._rows,
-            rate_hz=1.0,
-            diagnostics={"fixes": len(self._rows), "scans_without_fix": self._positioner.scans_without_fix},
-        )
-
-
-def make_positioner(config: LmsFederatedConfig, drive: Drive, range_model=None):
-    """An :class:`LmsFederatedPositioner` for a drive's tag map, and a function
-    turning an ``rfid`` measurement into ``(tag_id, range_m, sigma_m)``.
-
-    Distances and sigmas come from ``range_model`` or the drive's default
-    (:func:`graphpos.ranging.default_range_model`).
-    """
-    if range_model is None:
-        from graphpos.ranging import default_range_model
-
-        range_model = default_range_model(drive)
-    tags = {int(i): np.array([e, n]) for i, e, n in zip(drive.tags.tag_id, drive.tags.east_m, drive.tags.north_m)}
-    column = range_model.input_column
-
-    def reading(m: Measurement) -> tuple[int, float, float]:
-        d = range_model.predict_distance_m(np.array([m.values[column]]))
-        s = range_model.predict_sigma_m(d)
-        return int(m.values["tag_id"]), float(d[0]), float(s[0])
-
-    return LmsFederatedPositioner(config, tags), reading
+            self.diagnostics["scans_without_fix"] = self._positioner.scans_without_fix
+            return
+        self.diagnostics["ranges_used"] += fix.tags_used
+        self._rows.append(OutputRow(fix.t_s, fix.east_m, fix.north_m, cov_en_m2=fix.cov_en_m2))
 
 
 ESTIMATORS = {LmsFederated.name: LmsFederated}

@@ -15,16 +15,16 @@ IMM in :mod:`filters.core.imm`, the RFID positions come from
 :mod:`filters.lms`.
 
 Timing (the paper runs its fusion at 10 Hz, the compass rate, with ``T`` the
-sampling interval): the filter steps at the output epochs (10 Hz). The
+sampling interval): the filter steps at the output epochs (10 Hz; the
+multi-rate plumbing is :class:`filters.base.FilterEstimator`'s). The
 epoch's IMU samples are averaged into the model input (``a_x, a_y`` for CA,
 ``w_z`` for CT), its wheel speeds averaged into ``v_wheel``, the latest
 compass yaw taken as ``psi_compass``; an RFID fix completed during the epoch
 supplies the position rows. Rows without data that epoch are left out of
 ``Z`` (the observation is the subset present). Deviation, and why: a fix is
 moved forward to the epoch time with the filter's velocity
-(``z = X_RFID + v (t_epoch - t_fix)``, latency compensation), because the
-LMS-federated scan completes up to a scan window after its readings and a
-vehicle at 2 m/s would otherwise see a 1 m lag.
+(``z = X_RFID + v (t_epoch - t_fix)``, latency compensation), because a
+fix is up to one output interval old when the epoch closes.
 """
 
 from __future__ import annotations
@@ -34,15 +34,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from filters.base import FilterEstimator, InitialPose
 from filters.core import imm, stekf
 from filters.core.stekf import FadingConfig, FadingMemory
-from filters.lms import Fix, LmsFederatedConfig, make_positioner
+from filters.lms import Fix, LmsFederatedConfig, LmsFederatedPositioner
 from filters.models import kinematic as km
 from filters.models.angles import angle_residual, wrap_angle
-from graphpos.drive import Drive, Measurement
+from graphpos.drive import Drive
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
-from graphpos.estimator import Estimator
 
 _DEG = math.pi / 180.0
 _MODELS = ("ca", "ct")
@@ -76,6 +76,8 @@ class Song2014Config:
         Observation noise 1-sigma.
     rfid_sigma_floor_m : float
         Floor on the 1-sigma of an LMS-federated fix.
+    init_position_sigma_m, init_speed_sigma_mps, init_yaw_sigma_rad, init_yaw_rate_sigma_radps : float
+        Initial 1-sigmas around the starting pose.
     lms : LmsFederatedConfig
         The preliminary positioning.
     """
@@ -93,6 +95,10 @@ class Song2014Config:
     wheel_sigma_mps: float = 0.1
     compass_sigma_rad: float = 2.0 * _DEG
     rfid_sigma_floor_m: float = 0.5
+    init_position_sigma_m: float = 0.5
+    init_speed_sigma_mps: float = 0.3
+    init_yaw_sigma_rad: float = 3.0 * _DEG
+    init_yaw_rate_sigma_radps: float = 5.0 * _DEG
     lms: LmsFederatedConfig = field(default_factory=LmsFederatedConfig)
 
     def __post_init__(self) -> None:
@@ -121,120 +127,82 @@ class _Epoch:
         self.wheel_n = 0
         self.yaw: float | None = None
 
-    def add(self, m: Measurement) -> None:
-        v = m.values
-        if m.channel == "imu":
-            self.imu_sum += (v["accel_x_mps2"], v["accel_y_mps2"], v["yaw_rate_radps"])
-            self.imu_n += 1
-        elif m.channel == "wheel":
-            self.wheel_sum += v["speed_mps"]
-            self.wheel_n += 1
-        elif m.channel == "compass":
-            self.yaw = v["yaw_rad"]
 
+class Song2014Fusion(FilterEstimator):
+    """The song2014 fusion filter; subclasses fix the model set and fading.
 
-class Song2014Fusion(Estimator):
-    """The song2014 fusion filter; subclasses fix the model set and fading."""
+    Starts from the drive's initial pose (:class:`filters.base.InitialPose`:
+    the DGPS position before the tunnel, as in the paper's experiments).
+    """
 
     required_channels = ("rfid", "imu", "wheel", "compass")
+    config: Song2014Config
 
     def check(self, drive: Drive) -> None:
         super().check(drive)
         if not drive.has_accelerometers:
             raise MissingChannelError(f"{self.name} needs accelerometer readings (imu accel_x/y), which drive '{drive.name}' lacks")
 
-    # -- online -------------------------------------------------------------
-    def start(self, drive: Drive) -> None:
+    # -- handlers ---------------------------------------------------------------
+    def _init_filter(self, drive: Drive, t0_s: float) -> None:
         cfg = self.config
-        self._positioner, self._reading = make_positioner(cfg.lms, drive, self.range_model)
-        self._dt = 1.0 / cfg.output_rate_hz
-        self._epoch_end: float | None = None
+        self._positioner = LmsFederatedPositioner(cfg.lms)
         self._epoch = _Epoch()
         self._fix: Fix | None = None
         self._last_input = np.zeros(3)
-        self._states: list[np.ndarray] | None = None
-        self._covs: list[np.ndarray] = []
-        n = len(cfg.models)
-        self._memories = [FadingMemory(4) for _ in range(n)]
-        self._mu = np.asarray(cfg.initial_probabilities[:n] if n > 1 else (1.0,), dtype=np.float64)
-        self._markov = np.asarray(cfg.markov, dtype=np.float64) if n > 1 else np.ones((1, 1))
-        self._rows: list[OutputRow] = []
-        self._mu_log: list[list[float]] = []
-        self._fading_log: list[float] = []
-        self._fixes_used = 0
-
-    def process(self, measurement: Measurement) -> list[OutputRow]:
-        t = measurement.arrival_s
-        if self._epoch_end is None:
-            self._epoch_end = math.floor(t / self._dt) * self._dt + self._dt
-        out: list[OutputRow] = []
-        while t > self._epoch_end + 1e-9:
-            row = self._close_epoch(self._epoch_end)
-            if row is not None:
-                out.append(row)
-            self._epoch_end += self._dt
-        if measurement.channel == "rfid":
-            fix = self._positioner.add(measurement.t_s, *self._reading(measurement))
-            if fix is not None:
-                self._fix = fix
-        else:
-            self._epoch.add(measurement)
-        return out
-
-    def finish(self) -> Estimate:
-        if self._epoch_end is not None:
-            self._close_epoch(self._epoch_end)
-        mu = np.array(self._mu_log) if self._mu_log else np.zeros((0, len(self.config.models)))
-        diagnostics = {
-            "models": list(self.config.models),
-            "fixes_used": self._fixes_used,
-            "fading_factor_mean": float(np.mean(self._fading_log)) if self._fading_log else 1.0,
-            "fading_factor_max": float(np.max(self._fading_log)) if self._fading_log else 1.0,
-        }
-        if len(self.config.models) > 1:
-            diagnostics["model_probabilities"] = {
-                "t_s": [r.t_s for r in self._rows],
-                **{f"{name}_{i}" if self.config.models.count(name) > 1 else name: mu[:, i].tolist() for i, name in enumerate(self.config.models)},
-            }
-        return Estimate.from_rows(self.name, self._rows, rate_hz=self.config.output_rate_hz, diagnostics=diagnostics)
-
-    # -- one epoch ------------------------------------------------------------
-    def _close_epoch(self, t_s: float) -> OutputRow | None:
-        fix = self._positioner.advance(t_s)
-        if fix is not None:
-            self._fix = fix
-        epoch, self._epoch = self._epoch, _Epoch()
-        if epoch.imu_n:
-            self._last_input = epoch.imu_sum / epoch.imu_n
-        if self._states is None and not self._initialise(t_s, epoch):
-            return None
-        if self._states is not None and self._t_state < t_s:
-            self._step(t_s, epoch)
-        x, P = self._combined()
-        row = OutputRow(t_s, float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), P[:2, :2].copy())
-        self._rows.append(row)
-        self._mu_log.append(self._mu.tolist())
-        return row
-
-    def _initialise(self, t_s: float, epoch: _Epoch) -> bool:
-        cfg = self.config
-        if self._fix is None or epoch.yaw is None or epoch.wheel_n == 0:
-            return False
-        fix, self._fix = self._fix, None
-        yaw = wrap_angle(float(epoch.yaw))
-        speed = epoch.wheel_sum / epoch.wheel_n
-        lag = t_s - fix.t_s
-        v = speed * np.array([math.cos(yaw), math.sin(yaw)])
-        x = np.array([fix.east_m + v[0] * lag, fix.north_m + v[1] * lag, v[0], v[1], yaw, self._last_input[2]])
-        pos_var = max(float(np.max(np.linalg.eigvalsh(fix.cov_en_m2))), cfg.rfid_sigma_floor_m**2)
-        P = np.diag([pos_var, pos_var, 0.5**2, 0.5**2, cfg.compass_sigma_rad**2, (5 * _DEG) ** 2])
+        pose = InitialPose(drive, t0_s)
+        x = np.array([pose.east_m, pose.north_m, pose.v_east_mps, pose.v_north_mps, wrap_angle(pose.yaw_rad), 0.0])
+        P = np.diag(np.square([cfg.init_position_sigma_m, cfg.init_position_sigma_m, cfg.init_speed_sigma_mps,
+                               cfg.init_speed_sigma_mps, cfg.init_yaw_sigma_rad, cfg.init_yaw_rate_sigma_radps]))
         n = len(cfg.models)
         self._states = [x.copy() for _ in range(n)]
         self._covs = [P.copy() for _ in range(n)]
-        self._t_state = t_s
-        self._fixes_used += 1
-        return True
+        self._t_state = t0_s
+        self._memories = [FadingMemory(4) for _ in range(n)]
+        self._mu = np.asarray(cfg.initial_probabilities if n > 1 else (1.0,), dtype=np.float64)
+        self._markov = np.asarray(cfg.markov, dtype=np.float64) if n > 1 else np.ones((1, 1))
+        self._mu_log: list[list[float]] = []
+        self._fading_log: list[float] = []
+        self.diagnostics["fixes_used"] = 0
 
+    def _on_imu(self, t_s, accel_x, accel_y, yaw_rate):
+        self._epoch.imu_sum += (accel_x, accel_y, yaw_rate)
+        self._epoch.imu_n += 1
+
+    def _on_wheel(self, t_s, speed_mps):
+        self._epoch.wheel_sum += speed_mps
+        self._epoch.wheel_n += 1
+
+    def _on_compass(self, t_s, yaw_rad):
+        self._epoch.yaw = yaw_rad
+
+    def _on_scan(self, t_s, tags, ranges, sigmas):
+        fix = self._positioner.scan(t_s, tags, ranges, sigmas)
+        if fix is not None:
+            self._fix = fix
+
+    def _output(self, t_s: float) -> OutputRow:
+        epoch, self._epoch = self._epoch, _Epoch()
+        if epoch.imu_n:
+            self._last_input = epoch.imu_sum / epoch.imu_n
+        if t_s > self._t_state:
+            self._step(t_s, epoch)
+        x, P = self._combined()
+        self._mu_log.append(self._mu.tolist())
+        return OutputRow(t_s, float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), P[:2, :2].copy())
+
+    def finish(self) -> Estimate:
+        cfg = self.config
+        d = self.diagnostics
+        d["fading_factor_mean"] = float(np.mean(self._fading_log)) if self._fading_log else 1.0
+        d["fading_factor_max"] = float(np.max(self._fading_log)) if self._fading_log else 1.0
+        if len(cfg.models) > 1:
+            mu = np.array(self._mu_log)
+            names = [f"{m}_{i}" if cfg.models.count(m) > 1 else m for i, m in enumerate(cfg.models)]
+            d["model_probabilities"] = {"t_s": [r.t_s for r in self._rows], **{k: mu[:, i].tolist() for i, k in enumerate(names)}}
+        return super().finish()
+
+    # -- one epoch ------------------------------------------------------------
     def _step(self, t_s: float, epoch: _Epoch) -> None:
         cfg = self.config
         T = t_s - self._t_state
@@ -291,7 +259,7 @@ class Song2014Fusion(Estimator):
             z += [fix.east_m + x[km.VE] * lag, fix.north_m + x[km.VN] * lag]
             w, V = np.linalg.eigh(fix.cov_en_m2)
             R[:2, :2] = (V * np.maximum(w, cfg.rfid_sigma_floor_m**2)) @ V.T
-            self._fixes_used += 1
+            self.diagnostics["fixes_used"] += 1
         if epoch.wheel_n:
             rows.append(km.OBS_SPEED)
             z.append(epoch.wheel_sum / epoch.wheel_n)

@@ -25,8 +25,10 @@ def make_drive(duration_s=90.0, speed_mps=5.5, yaw_rate_radps=0.0, gnss_sigma_m=
         e, n = speed_mps * t * math.cos(0.2), speed_mps * t * math.sin(0.2)
     third = duration_s / 3
     noise = (lambda sd, k: rng.normal(0, sd, k)) if sensor_noise else (lambda sd, k: np.zeros(k))
-    imu = Channel("imu", {"t_s": t, "yaw_rate_radps": np.full(t.size, yaw_rate_radps) + noise(0.2 * math.pi / 180, t.size)})
-    wheel = Channel("wheel", {"t_s": t, "speed_mps": np.full(t.size, speed_mps) + noise(0.05, t.size)})
+    # MEMS-grade gyro bias and a wheel scale error when noisy: DR drifts
+    gyro_bias, wheel_scale = (0.05 * math.pi / 180, 1.01) if sensor_noise else (0.0, 1.0)
+    imu = Channel("imu", {"t_s": t, "yaw_rate_radps": yaw_rate_radps + gyro_bias + noise(0.2 * math.pi / 180, t.size)})
+    wheel = Channel("wheel", {"t_s": t, "speed_mps": wheel_scale * speed_mps + noise(0.05, t.size)})
     k1 = np.arange(0, t.size, 100)
     tg = t[k1]
     if gnss_bias is None:
