@@ -11,7 +11,7 @@ a keyframe already in the graph goes into the next update, up to
 
 Start-up: until the first absolute information (a fix or a tag range),
 nothing constrains the position, so keyframes are held back (their output is
-dead reckoning from the origin, or from ``config.initial_pose``). The first
+dead reckoning from the origin) unless a start pose is given. The first
 absolute reading anchors the trajectory: the held keyframes are shifted so
 the anchoring keyframe sits at the fix, or at the tags' centroid (offset by
 the range from a single wall tag), and released to the smoother with a weak
@@ -82,6 +82,9 @@ class GraphBuilder:
         Keep every factor (for batch solves and range-scale estimation).
     range_scale : float
         Readings are divided by this scale (``reading = scale * distance``).
+    initial_pose : tuple (east_m, north_m, yaw_rad) or None
+        A known start pose (prior with the config's sigmas); None: anchor on
+        the first absolute reading.
     """
 
     def __init__(
@@ -94,6 +97,7 @@ class GraphBuilder:
         landmark_lifetime_s: float = math.inf,
         keep_history: bool = True,
         range_scale: float = 1.0,
+        initial_pose: tuple[float, float, float] | None = None,
     ):
         self.config = config
         self.model = model
@@ -102,6 +106,7 @@ class GraphBuilder:
         self.landmark_lifetime_s = landmark_lifetime_s
         self.keep_history = keep_history
         self.range_scale = range_scale
+        self.initial_pose = initial_pose
         self.period_s = 1.0 / config.keyframe_rate_hz
         self.tags = {int(i): (float(e), float(n), int(w)) for i, e, n, w in zip(drive.tags.tag_id, drive.tags.east_m, drive.tags.north_m, drive.tags.wall_side)}
         self.rsus = {int(i): (float(e), float(n)) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
@@ -126,7 +131,7 @@ class GraphBuilder:
         self._ready: list[tuple[int, tuple]] = []  # readings for closed keyframes, next update
         self._landmarks: dict[tuple[str, int], tuple[int, float]] = {}
         self._landmark_count = 0
-        self.anchored = config.initial_pose is not None
+        self.anchored = initial_pose is not None
         self._backlog: list[Increment] = []
         self._backlog_landmarks: dict[int, np.ndarray] = {}
         self._first_yaw: float | None = None
@@ -227,8 +232,8 @@ class GraphBuilder:
 
     # -- keyframes ------------------------------------------------------------
     def _initial_state(self) -> KeyframeState:
-        if self.config.initial_pose is not None:
-            e, n, yaw = self.config.initial_pose
+        if self.initial_pose is not None:
+            e, n, yaw = self.initial_pose
             return KeyframeState(float(e), float(n), float(yaw))
         yaw = self._first_yaw if self._first_yaw is not None else 0.0
         return KeyframeState(0.0, 0.0, yaw)

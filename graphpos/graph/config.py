@@ -59,6 +59,11 @@ class GraphConfig:
     initial_pose : tuple (east_m, north_m, yaw_rad) or None
         A given start pose. None: start from the first absolute information
         (a GNSS/RSU fix or the first tag ranges) and the first compass yaw.
+    initial_pose_from_reference : bool
+        When ``initial_pose`` is None, take the start pose from the drive's
+        reference (truth, else the first GNSS fix) at its first epoch, as the
+        papers' filters do (song2016 §6 starts from DGPS before the tunnel).
+        False: start from the first absolute reading instead.
     initial_position_sigma_m, initial_yaw_sigma_rad : float
         1-sigma of the start-up prior.
     max_delay_s : float
@@ -98,8 +103,9 @@ class GraphConfig:
     heading_drift_sigma_radps: float = math.radians(0.2)
     compass_sigma_rad: float = math.radians(2.0)
     initial_pose: tuple[float, float, float] | None = None
-    initial_position_sigma_m: float = 1.0
-    initial_yaw_sigma_rad: float = math.radians(5.0)
+    initial_pose_from_reference: bool = True
+    initial_position_sigma_m: float = 0.5
+    initial_yaw_sigma_rad: float = math.radians(3.0)
     max_delay_s: float = 3.0
     fixed_lag_s: float = 10.0
     final: bool = False

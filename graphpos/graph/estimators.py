@@ -80,11 +80,24 @@ class _GraphEstimator(Estimator):
         self.model = make_model(self.config, drive.has_accelerometers)
         if self.model.name == "inertial" and not drive.has_accelerometers:
             raise MissingChannelError(f"{self.name}: the inertial graph needs accelerometers; drive '{drive.name}' has none (use parameterisation='planar')")
-        self.builder = GraphBuilder(self.config, self.model, drive, model_range, **self._builder_options())
+        self.builder = GraphBuilder(self.config, self.model, drive, model_range, initial_pose=self._initial_pose(drive), **self._builder_options())
         self.smoother = self._make_smoother(self.model.name)
         self.rows: list[OutputRow] = []
         self.update_times_s: list[float] = []
         self._drive_name = drive.name
+
+    def _initial_pose(self, drive: Drive) -> tuple[float, float, float] | None:
+        """The configured start pose, else the reference's first pose (see GraphConfig)."""
+        if self.config.initial_pose is not None:
+            return tuple(float(x) for x in self.config.initial_pose)
+        if not self.config.initial_pose_from_reference:
+            return None
+        if drive.has("truth"):
+            tr = drive.truth
+            return float(tr.east_m[0]), float(tr.north_m[0]), float(tr.yaw_rad[0])
+        if drive.has("gnss") and drive.has("compass"):
+            return float(drive.gnss.east_m[0]), float(drive.gnss.north_m[0]), float(drive.compass.yaw_rad[0])
+        return None
 
     def process(self, measurement: Measurement) -> list[OutputRow]:
         return self._apply(self.builder.add(measurement))

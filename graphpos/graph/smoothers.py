@@ -26,9 +26,9 @@ def isam2_params(model_name: str, find_unused_factor_slots: bool = False) -> gts
         thresholds.insert(("l", np.array([1.0, 1.0])))
         thresholds.insert(("r", np.array([1.0, 1.0])))
     else:
-        thresholds.insert(("x", np.array([0.005, 0.005, 0.005, 0.02, 0.02, 0.02])))
-        thresholds.insert(("v", np.array([0.02, 0.02, 0.02])))
-        thresholds.insert(("b", np.array([1e-3, 1e-3, 1e-3, 1e-4, 1e-4, 1e-4])))
+        thresholds.insert(("x", np.array([0.02, 0.02, 0.01, 0.05, 0.05, 0.05])))
+        thresholds.insert(("v", np.array([0.05, 0.05, 0.05])))
+        thresholds.insert(("b", np.array([0.02, 0.02, 0.02, 2e-3, 2e-3, 2e-3])))
         thresholds.insert(("l", np.array([1.0, 1.0, 1.0])))
         thresholds.insert(("r", np.array([1.0, 1.0, 1.0])))
     params.setRelinearizeThreshold(thresholds)
