@@ -18,27 +18,21 @@ import csv
 import io
 import json
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
 from graphpos.drive import GeoOrigin
+from graphpos.io.files import atomic_output
 from graphpos.io.geo import enu_to_geodetic
 from graphpos.estimate import CSV_COLUMNS, Estimate
 
 def write_atomically(path: str | os.PathLike, data: str | bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary file and a rename."""
+    """Write ``data`` to ``path`` (folders created) through :func:`graphpos.io.files.atomic_output`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            fh.write(data.encode() if isinstance(data, str) else data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_output(path) as stream:
+        stream.write(data.encode() if isinstance(data, str) else data)
     return path
 
 
