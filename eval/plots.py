@@ -13,6 +13,7 @@ import numpy as np  # noqa: E402
 from eval.metrics import error_series, wheel_speed_error  # noqa: E402
 from graphpos.drive import Drive  # noqa: E402
 from graphpos.estimate import Estimate  # noqa: E402
+from graphpos.io.files import atomic_output  # noqa: E402
 
 _DPI = 110
 
@@ -20,10 +21,9 @@ _DPI = 110
 def _save(fig, path: Path) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=_DPI, bbox_inches="tight")
+    with atomic_output(path) as stream:
+        fig.savefig(stream, format="png", dpi=_DPI, bbox_inches="tight")
     plt.close(fig)
-    tmp.replace(path)
     return path
 
 
