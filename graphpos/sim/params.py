@@ -281,6 +281,9 @@ def check_params(params: dict[str, Any]) -> None:
         raise ConfigError("parameter 'motion.speed_low_mps' must not exceed motion.speed_high_mps")
     if motion["turnaround_radius_m"] < route["lane_width_m"]:
         raise ConfigError("parameter 'motion.turnaround_radius_m' must be at least route.lane_width_m")
+    for name, zone in params.get("gnss", {}).get("zones", {}).items():
+        if 0 < zone["tail_dof"] <= 2:
+            raise ConfigError(f"parameter 'gnss.zones.{name}.tail_dof' must be 0 (Gaussian) or above 2 (finite variance)")
     if "tags" in params:
         tags = params["tags"]
         if tags["spacing_m"] <= 0:
