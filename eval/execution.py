@@ -211,8 +211,15 @@ def executor(workers: int | None = None, scheduler: str | None = None) -> Iterat
         return
     if workers is not None and workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {workers}")
-    with ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1) as pool:
+    with ProcessPoolExecutor(max_workers=workers or os.cpu_count() or 1, initializer=_one_blas_thread) as pool:
         yield pool
+
+
+def _one_blas_thread() -> None:
+    """One BLAS thread per worker process: the pool already uses every core."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
 
 
 def execute(jobs: list[Job], workers: int | None = None, scheduler: str | None = None,
