@@ -57,6 +57,21 @@ def _walls(drive: Drive) -> list[np.ndarray]:
     return walls
 
 
+def _frame_on_truth(ax, drive: Drive, margin: float = 0.15) -> None:
+    """Frame the truth and the tags (a diverging estimate leaves the frame instead of squashing it)."""
+    east = [drive.truth.east_m] if drive.has("truth") else []
+    north = [drive.truth.north_m] if drive.has("truth") else []
+    east += [drive.tags.east_m, drive.rsus.east_m]
+    north += [drive.tags.north_m, drive.rsus.north_m]
+    e, n = np.concatenate(east), np.concatenate(north)
+    if not e.size:
+        return
+    span = max(np.ptp(e), np.ptp(n), 10.0)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlim(e.min() - margin * span, e.max() + margin * span)
+    ax.set_ylim(n.min() - margin * span, n.max() + margin * span)
+
+
 def trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: str | None = None) -> Path:
     """Truth and estimates over the tunnel walls and tags (the heard layout filled)."""
     fig, ax = plt.subplots(figsize=(10, 5))
@@ -75,9 +90,9 @@ def trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: st
     colors = _colors([e.name for e in estimates])
     for est in estimates:
         ax.plot(est.east_m, est.north_m, lw=1.0, color=colors[est.name], label=est.name)
+    _frame_on_truth(ax, drive)
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
-    ax.set_aspect("equal", adjustable="datalim")
     ax.legend(fontsize=8, loc="best")
     ax.set_title(f"{drive.name}: trajectories")
     ax.grid(alpha=0.3)

@@ -323,15 +323,16 @@ def _fault_section(report: Report, results: list[JobResult], tables: dict) -> No
 
 def _plaza_section(report: Report, res: dict, drive, folder: Path, tables: dict) -> None:
     rs = {name: res[("plaza", name, None)] for name in PLAZA_ESTIMATORS}
-    header = ["estimator", "max [m]", "RMS [m]", "mean [m]", "p95 [m]", "rate [Hz]", "wall [s]"]
+    header = ["estimator", "max [m]", "RMS [m]", "mean [m]", "p95 [m]", "scored / outputs", "rate [Hz]", "wall [s]"]
     rows = []
     for name, r in rs.items():
         if not r.ok:
-            rows.append([name, cell_error(r), "", "", "", "", ""])
+            rows.append([name, cell_error(r)] + [""] * (len(header) - 2))
             continue
         p = r.metrics["windows"][WHOLE]["position"]
         rows.append([name, fmt(p["max_m"]), fmt(p["rms_m"]), fmt(p["mean_m"]), fmt(p["p95_m"]),
-                     fmt(r.metrics["output_rate_hz"], 1), fmt(r.metrics["wall_time_s"])])
+                     f"{p['n']} / {r.metrics['n_outputs']}", fmt(r.metrics["output_rate_hz"], 1),
+                     fmt(r.metrics["wall_time_s"])])
     sec = report.section(f"Real data: Plaza ({drive.name})")
     sec.text("UWB ranges to beacons, wheel odometry and gyro; ground truth from the dataset. Ranging is not "
              "calibrated on this drive's truth (the only Plaza drive): the default range model uses the ranges as "
