@@ -1,4 +1,4 @@
-"""Commands ``ranging table1``, ``ranging fit`` and ``ranging show`` (the ``graphpos.ranging`` package)."""
+"""Commands ``ranging table1``, ``ranging fit``, ``ranging check`` and ``ranging show`` (the ``graphpos.ranging`` package)."""
 
 from __future__ import annotations
 
@@ -38,6 +38,14 @@ def register(sub) -> None:
     p.add_argument("--kind", default="auto", choices=("auto", "lssvm", "propagation", "linear"),
                    help="auto: linear for radios reporting ranges, lssvm for RSS (default)")
     p.set_defaults(func=_fit)
+
+    p = commands.add_parser("check", help="range error of a range model on a drive with truth",
+                            description="Mean, STD and RMS of the range error (predicted - true) by true-distance "
+                                        "band, and how honest the model's 1-sigma is (RMS of error/sigma).")
+    p.add_argument("drive", type=Path, help="drive MCAP file with truth")
+    p.add_argument("--range-model", type=Path, default=None, metavar="FILE",
+                   help="saved range model (default: the drive's default model)")
+    p.set_defaults(func=_check)
 
     p = commands.add_parser("show", help="print a saved range model",
                             description="Kind, parameters and predicted 1-sigma of a saved range model.")
@@ -83,6 +91,21 @@ def _fit(args: argparse.Namespace) -> int:
     print(f"  fitted range - true range (in-sample): {_error_figures(model.predict_distance_m(reading), true_m)}")
     model.save(args.output)
     print(f"wrote {args.output}")
+    return 0
+
+
+def _check(args: argparse.Namespace) -> int:
+    from graphpos.io import read_drive
+    from graphpos.ranging import default_range_model, load_range_model
+    from graphpos.ranging.assess import format_range_errors, range_errors
+
+    model = load_range_model(args.range_model) if args.range_model else None
+    drive = read_drive(args.drive)
+    if model is None:
+        model = default_range_model(drive)
+    source = args.range_model or "default"
+    print(f"{model.kind} range model ({source}) on {args.drive.name}: range error (m) by true range")
+    print(format_range_errors(range_errors(model, drive)))
     return 0
 
 

@@ -5,9 +5,10 @@ A drive whose radio reports ranges (``rfid.range_m``) uses them through a
 A drive whose radio reports RSS is converted by an LSSVM (song2016 §3) fitted
 offline on simulated calibration data of its environment (song2016 §6.1):
 the averaged collection of four tags trains the model, and the individual
-1 Hz readings of a second collection, with four other tags, give its 1-sigma
-(a drive's tags are not the calibration tags, and a drive's readings are not
-averaged, so only such held-out readings make the sigma honest).
+1 Hz readings of a second collection, with twenty other tags, give its
+1-sigma (a drive's tags are not the calibration tags, and a drive's readings
+are not averaged, so only such held-out readings make the sigma honest; with
+four tags the tag-to-tag shadowing spread would be guessed from four draws).
 """
 
 from __future__ import annotations
@@ -28,6 +29,9 @@ from graphpos.ranging.rss_model import RssRangeModel
 #: Seed of the simulated calibration collections behind the default models.
 CALIBRATION_SEED = 2016
 
+#: Held-out collection the calibrated models learn their sigma from.
+SIGMA_COLLECTION = {"n_tags": 20, "duration_s": 60.0}
+
 #: Model kinds :func:`fit_from_drive` can fit.
 FIT_KINDS = ("auto", "lssvm", "propagation", "linear")
 
@@ -37,9 +41,10 @@ _RSS_KINDS: dict[str, type[RssRangeModel]] = {"lssvm": LssvmRangeModel, "propaga
 def calibrated_model(environment: str, kind: str = "lssvm", seed: int = CALIBRATION_SEED) -> RssRangeModel:
     """An RSS model fitted on a simulated calibration collection (song2016 §6.1).
 
-    Trained on the averaged RSS of collection ``[seed, 0]``; its 1-sigma is
-    learned from the individual readings of collection ``[seed, 1]`` (other
-    tags). Cached per (environment, kind, seed); each call returns a copy.
+    Trained on the averaged RSS of collection ``[seed, 0]`` (four tags, five
+    minutes); its 1-sigma is learned from the individual readings of
+    collection ``[seed, 2]`` (:data:`SIGMA_COLLECTION`: other tags). Cached
+    per (environment, kind, seed); each call returns a copy.
     """
     return type(_calibrated(environment, kind, seed)).from_dict(_calibrated(environment, kind, seed).to_dict())
 
@@ -49,7 +54,7 @@ def _calibrated(environment: str, kind: str, seed: int) -> RssRangeModel:
     if kind not in _RSS_KINDS:
         raise ConfigError(f"unknown RSS model kind '{kind}' (known: {', '.join(_RSS_KINDS)})")
     train = simulate_collection(environment, [seed, 0])
-    held_out = simulate_collection(environment, [seed, 1])
+    held_out = simulate_collection(environment, [seed, 2], **SIGMA_COLLECTION)
     model = _RSS_KINDS[kind]().fit(train.mean_rss, train.distance_m)
     return model.fit_sigma(held_out.readings.ravel(), held_out.reading_distance_m)
 

@@ -4,8 +4,8 @@ The model is ``f(x) = sum_k alpha_k K(x, x_k) + b`` (song2016 eq. 9) with the
 RBF kernel ``K(x, x_k) = exp(-|x - x_k|^2 / (2 sigma^2))`` (eq. 8); ``b`` and
 ``alpha`` solve the bordered (N+1)x(N+1) linear system of eq. 6, obtained from
 the KKT conditions (eq. 5) of the regularised least-squares problem (eq. 2-4).
-The system is solved directly by LU factorisation with partial pivoting (it
-is symmetric but indefinite, so Cholesky does not apply to it as printed).
+The system is solved directly (block elimination with a Cholesky
+factorisation; see :func:`solve_lssvm`), not by an iterative fit.
 
 The paper says gamma and sigma are "determined during the training"; here
 they are chosen by k-fold cross-validation (mean squared out-of-fold error)
@@ -51,23 +51,23 @@ def rbf_kernel(x_a: np.ndarray, x_b: np.ndarray, kernel_sigma: float) -> np.ndar
 def solve_lssvm(x: np.ndarray, y: np.ndarray, gamma: float, kernel_sigma: float) -> tuple[float, np.ndarray]:
     """Solve song2016 eq. 6 for the bias ``b`` and multipliers ``alpha``.
 
-    ``[[0, 1^T], [1, Omega + I/gamma]] [b; alpha] = [0; Y]``, solved by LU.
+    ``[[0, 1^T], [1, H]] [b; alpha] = [0; Y]`` with ``H = Omega + I/gamma``.
+    The bordered matrix is symmetric indefinite, but ``H`` is positive
+    definite, so the system is solved exactly by block elimination with one
+    Cholesky factorisation of ``H`` (half the work of LU on the bordered
+    matrix): ``b = 1^T H^-1 Y / 1^T H^-1 1``, ``alpha = H^-1 Y - b H^-1 1``.
 
     Returns
     -------
     b : float
     alpha : array (N,)
     """
-    n = x.size
-    system = np.empty((n + 1, n + 1))
-    system[0, 0] = 0.0
-    system[0, 1:] = 1.0
-    system[1:, 0] = 1.0
-    system[1:, 1:] = rbf_kernel(x, x, kernel_sigma)
-    system[np.arange(1, n + 1), np.arange(1, n + 1)] += 1.0 / gamma
-    rhs = np.concatenate(([0.0], y))
-    solution = scipy.linalg.lu_solve(scipy.linalg.lu_factor(system, check_finite=False), rhs, check_finite=False)
-    return float(solution[0]), solution[1:]
+    h = rbf_kernel(x, x, kernel_sigma)
+    h[np.diag_indices_from(h)] += 1.0 / gamma
+    factor = scipy.linalg.cho_factor(h, lower=True, overwrite_a=True, check_finite=False)
+    h_inv_y, h_inv_1 = scipy.linalg.cho_solve(factor, np.column_stack([y, np.ones_like(y)]), check_finite=False).T
+    b = float(h_inv_y.sum() / h_inv_1.sum())
+    return b, h_inv_y - b * h_inv_1
 
 
 def _cross_validate(
@@ -155,6 +155,12 @@ class LssvmRangeModel(RssRangeModel):
 
     # -- fitting -------------------------------------------------------------
     def fit(self, reading: np.ndarray, true_distance_m: np.ndarray) -> "LssvmRangeModel":
+        # one BLAS thread: the many small decompositions of the cross-validation
+        # only suffer from threads, and fits often run inside process pools
+        with threadpool_limits(limits=1, user_api="blas"):
+            return self._fit(reading, true_distance_m)
+
+    def _fit(self, reading: np.ndarray, true_distance_m: np.ndarray) -> "LssvmRangeModel":
         x, y = clean_pairs(reading, true_distance_m, need=max(2 * self.folds, 3))
         rng = np.random.default_rng(self.seed)
         if x.size > self.max_train_samples:
@@ -163,9 +169,7 @@ class LssvmRangeModel(RssRangeModel):
         held_out = None
         if self.gamma is None:
             cv = np.sort(rng.choice(x.size, self.cv_samples, replace=False)) if x.size > self.cv_samples else np.arange(x.size)
-            # hundreds of small decompositions: BLAS threads only add contention
-            with threadpool_limits(limits=1, user_api="blas"):
-                self.gamma, self.kernel_sigma, out_of_fold = _cross_validate(x[cv], y[cv], self.folds, rng)
+            self.gamma, self.kernel_sigma, out_of_fold = _cross_validate(x[cv], y[cv], self.folds, rng)
             held_out = (np.maximum(out_of_fold, 0.0), y[cv])
         self.bias_m, self.alpha = solve_lssvm(x, y, self.gamma, self.kernel_sigma)
         self.support_x = x

@@ -45,7 +45,7 @@ class SigmaTable:
             raise ConfigError("a sigma table needs increasing finite distances and positive sigmas")
 
     @classmethod
-    def fit(cls, predicted_m: np.ndarray, true_m: np.ndarray, min_per_bin: int = 30, max_bins: int = 12) -> "SigmaTable":
+    def fit(cls, predicted_m: np.ndarray, true_m: np.ndarray, min_per_bin: int = 50, max_bins: int = 12) -> "SigmaTable":
         """Tabulate the RMS of ``predicted - true`` in quantile bins of the prediction.
 
         Parameters

@@ -54,6 +54,9 @@ def test_fit_writes_a_loadable_model(tmp_path, capsys):
     assert isinstance(model, LinearCalibration) and model.scale == pytest.approx(1.07)
     assert main(["ranging", "show", str(model_path)]) == 0
     assert "linear range model" in capsys.readouterr().out
+    assert main(["ranging", "check", str(drive_path), "--range-model", str(model_path)]) == 0
+    out = capsys.readouterr().out
+    assert "RMS/sigma" in out and out.strip().splitlines()[-1].startswith("all")
 
 
 @pytest.mark.parametrize(
@@ -65,6 +68,8 @@ def test_fit_writes_a_loadable_model(tmp_path, capsys):
         (["ranging", "fit", "NOTRUTH", "--truth", "-o", "OUT"], "no truth"),
         (["ranging", "fit", "DRIVE", "--truth", "-o", "OUT", "--kind", "propagation"], "no 'rss' readings"),
         (["ranging", "show", "missing.json"], "no such range-model file"),
+        (["ranging", "check", "NOTRUTH"], "no truth"),
+        (["ranging", "check", "DRIVE", "--range-model", "missing.json"], "no such range-model file"),
         (["ranging", "table1", "--seed", "-3"], "non-negative"),
     ],
 )

@@ -166,3 +166,17 @@ def test_true_ranges_from_truth_trajectory():
     drive = drive.replace(channels={**drive.channels, "truth": truth})
     # t=0 at (0,0) to tag 1 (0,3); t=1 at (5,0) to tag 2 (10,3); t=2 at (10,0) to tag 1
     np.testing.assert_allclose(true_ranges_m(drive), [3.0, np.hypot(5, 3), np.hypot(10, 3)])
+
+
+def test_range_errors_by_band():
+    from graphpos.ranging.assess import range_errors
+
+    true = np.array([1.0, 1.5, 3.0, 5.0, 7.0, 12.0])
+    drive = _drive(range_m=true + np.array([0.5, 0.5, -0.3, 0.3, 1.2, 0.0]), true_range_m=true)
+    rows = range_errors(LinearCalibration(sigma0_m=0.4), drive)
+    assert [(r.lo_m, r.hi_m, r.count) for r in rows] == [
+        (0, 2, 2), (2, 4, 1), (4, 6, 1), (6, 9, 1), (9, np.inf, 1), (0, np.inf, 6)]
+    assert rows[0].mean_m == pytest.approx(0.5) and rows[0].std_m == pytest.approx(0.0, abs=1e-12)
+    assert rows[0].z_rms == pytest.approx(0.5 / 0.4)
+    assert rows[3].beyond_3_sigma == 0.0 and rows[-1].beyond_3_sigma == pytest.approx(0.0)
+    assert rows[-1].rms_m == pytest.approx(np.sqrt(np.mean(np.array([0.5, 0.5, 0.3, 0.3, 1.2, 0]) ** 2)))
