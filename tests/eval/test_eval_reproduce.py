@@ -30,13 +30,13 @@ def test_reproduce_tables_with_failures_in_cells(tmp_path, monkeypatch):
                        rows=(Row("rfid-ekf", "RFID-EKF", (9.27, 5.07)), Row("no-such", "Missing", (1.0, 1.0))),
                        extra=())]
     monkeypatch.setattr(reproduce_module, "experiments", lambda: tiny)
-    monkeypatch.setattr(reproduce_module, "LATENCY_ESTIMATORS", (("rfid-ekf", "dense"),))
+    monkeypatch.setattr(reproduce_module, "DEGRADED_ESTIMATORS", (("rfid-ekf", "dense"),))
     monkeypatch.setattr(reproduce_module, "default_plaza_path", lambda: tmp_path / "absent.mat")
     outcome = reproduce_module.reproduce(tmp_path / "out", seeds=2, workers=1, progress=False)
     md = (tmp_path / "out" / "report.md").read_text()
     assert "| RFID-EKF | dense | 9.27 | 5.07 |" in md
     assert "FAILED: ConfigError: unknown estimator 'no-such'" in md
-    assert "Late measurements" in md and "Plaza" in md and "song2016 Table 1" in md
+    assert "Late measurements and reader faults" in md and "Plaza" in md and "song2016 Table 1" in md
     assert [r.job.estimator for r in outcome.failures] == ["no-such", "no-such"]
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     row = res["tables"]["t"]["rows"][0]
@@ -63,7 +63,7 @@ def test_reproduce_quick_end_to_end(tmp_path):
         assert (tmp_path / name).stat().st_size > 0
     res = json.loads((tmp_path / "results.json").read_text())
     assert {"song2016-table1", "song2016-table2", "song2016-table3", "song2016b-tableI", "song2014-table5",
-            "liu2016-zones", "latency"} <= set(res["tables"])
+            "liu2016-zones", "degraded"} <= set(res["tables"])
     failed = [r for r in res["runs"] if r["error"] and not r["not_applicable"]]
     assert code == (1 if failed else 0)
     assert took < 180
