@@ -10,8 +10,10 @@ from graphpos.drive import Drive
 from graphpos.ranging.drive_models import true_ranges_m
 from graphpos.ranging.model import RangeModel
 
-#: Default band edges (m): song2016's reliable range is 6 m, its maximum 9 m.
-BAND_EDGES_M = (0.0, 2.0, 4.0, 6.0, 9.0, np.inf)
+#: Band edges (m) for RSS radios: song2016's reliable range is 6 m, its maximum 9 m.
+RSS_BAND_EDGES_M = (0.0, 2.0, 4.0, 6.0, 9.0, np.inf)
+#: Band edges (m) for radios reporting ranges (UWB, RSU two-way ranging).
+RANGE_BAND_EDGES_M = (0.0, 10.0, 20.0, 30.0, 50.0, np.inf)
 
 
 @dataclass(frozen=True)
@@ -34,11 +36,14 @@ class BandErrors:
     beyond_3_sigma: float
 
 
-def range_errors(model: RangeModel, drive: Drive, edges_m: tuple[float, ...] = BAND_EDGES_M) -> list[BandErrors]:
+def range_errors(model: RangeModel, drive: Drive, edges_m: tuple[float, ...] | None = None) -> list[BandErrors]:
     """Range error of ``model`` on ``drive`` per true-distance band, then over all readings (last row).
 
-    Bands without readings are left out.
+    ``edges_m`` defaults to :data:`RSS_BAND_EDGES_M` for RSS models and
+    :data:`RANGE_BAND_EDGES_M` otherwise. Bands without readings are left out.
     """
+    if edges_m is None:
+        edges_m = RSS_BAND_EDGES_M if model.input_column == "rss" else RANGE_BAND_EDGES_M
     true_m = true_ranges_m(drive)
     predicted_m, sigma_m = model.ranges(drive.rfid)
     ok = np.isfinite(true_m) & np.isfinite(predicted_m)

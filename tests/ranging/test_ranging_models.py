@@ -125,6 +125,7 @@ def _drive(**rfid_columns):
 def test_default_model_per_drive_kind():
     ranged = default_range_model(_drive(range_m=[1.0, 2.0, 3.0]))
     assert isinstance(ranged, LinearCalibration) and (ranged.scale, ranged.offset_m) == (1.0, 0.0)
+    assert ranged.predict_sigma_m(np.array([0.0, 20.0])) == pytest.approx([0.3, 1.3])
     rss_drive = _drive(rss=[220.0, 190.0, 170.0])
     hits = _calibrated.cache_info().hits
     first, second = default_range_model(rss_drive), default_range_model(rss_drive)
@@ -173,7 +174,7 @@ def test_range_errors_by_band():
 
     true = np.array([1.0, 1.5, 3.0, 5.0, 7.0, 12.0])
     drive = _drive(range_m=true + np.array([0.5, 0.5, -0.3, 0.3, 1.2, 0.0]), true_range_m=true)
-    rows = range_errors(LinearCalibration(sigma0_m=0.4), drive)
+    rows = range_errors(LinearCalibration(sigma0_m=0.4), drive, edges_m=(0, 2, 4, 6, 9, np.inf))
     assert [(r.lo_m, r.hi_m, r.count) for r in rows] == [
         (0, 2, 2), (2, 4, 1), (4, 6, 1), (6, 9, 1), (9, np.inf, 1), (0, np.inf, 6)]
     assert rows[0].mean_m == pytest.approx(0.5) and rows[0].std_m == pytest.approx(0.0, abs=1e-12)
