@@ -70,16 +70,31 @@ def solve_lssvm(x: np.ndarray, y: np.ndarray, gamma: float, kernel_sigma: float)
     return b, h_inv_y - b * h_inv_1
 
 
+def fold_predictions(
+    x_train: np.ndarray, y_train: np.ndarray, x_test: np.ndarray, kernel_sigma: float, gammas: np.ndarray
+) -> np.ndarray:
+    """eq. 9 at ``x_test`` of the eq. 6 solutions for every gamma, shape (len(gammas), len(x_test)).
+
+    Solved through the eigendecomposition ``Omega = U diag(lam) U^T``: with
+    ``H = Omega + I/gamma``, eliminating ``alpha`` from eq. 6 gives
+    ``b = 1^T H^-1 Y / 1^T H^-1 1`` and ``alpha = H^-1 (Y - b 1)`` — the same
+    solution as :func:`solve_lssvm`, but one decomposition serves every gamma.
+    """
+    lam, u = np.linalg.eigh(rbf_kernel(x_train, x_train, kernel_sigma))
+    ut_y, ut_1 = u.T @ y_train, u.sum(axis=0)
+    k_test_u = rbf_kernel(x_test, x_train, kernel_sigma) @ u
+    out = np.empty((len(gammas), x_test.size))
+    for g, gamma in enumerate(gammas):
+        h = 1.0 / (np.maximum(lam, 0.0) + 1.0 / gamma)
+        b = (ut_1 * h) @ ut_y / ((ut_1 * h) @ ut_1)
+        out[g] = k_test_u @ (h * (ut_y - b * ut_1)) + b
+    return out
+
+
 def _cross_validate(
     x: np.ndarray, y: np.ndarray, folds: int, rng: np.random.Generator
 ) -> tuple[float, float, np.ndarray]:
-    """k-fold CV over the (gamma, sigma) grid.
-
-    Each fold's eq. 6 is solved through the eigendecomposition of its kernel
-    matrix, ``Omega = U diag(lam) U^T``: with ``H = Omega + I/gamma``,
-    eliminating ``alpha`` from eq. 6 gives ``b = 1^T H^-1 Y / 1^T H^-1 1`` and
-    ``alpha = H^-1 (Y - b 1)`` — the same solution, but one decomposition
-    serves every gamma of the grid.
+    """k-fold CV over the (gamma, sigma) grid (mean squared out-of-fold error).
 
     Returns the best gamma, the best kernel sigma and the out-of-fold
     predictions at that pair (for learning the range sigma honestly).
@@ -91,14 +106,7 @@ def _cross_validate(
         out_of_fold = np.empty((GAMMA_GRID.size, x.size))
         for fold in range(folds):
             test = fold_of == fold
-            train = ~test
-            lam, u = np.linalg.eigh(rbf_kernel(x[train], x[train], kernel_sigma))
-            ut_y, ut_1 = u.T @ y[train], u.sum(axis=0)
-            k_test_u = rbf_kernel(x[test], x[train], kernel_sigma) @ u
-            for g, gamma in enumerate(GAMMA_GRID):
-                h = 1.0 / (np.maximum(lam, 0.0) + 1.0 / gamma)
-                b = (ut_1 * h) @ ut_y / ((ut_1 * h) @ ut_1)
-                out_of_fold[g, test] = k_test_u @ (h * (ut_y - b * ut_1)) + b
+            out_of_fold[:, test] = fold_predictions(x[~test], y[~test], x[test], kernel_sigma, GAMMA_GRID)
         mse = np.mean((out_of_fold - y) ** 2, axis=1)
         g = int(np.argmin(mse))
         if mse[g] < best[0]:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from graphpos.errors import ConfigError
-from graphpos.ranging.lssvm import LssvmRangeModel, solve_lssvm
+from graphpos.ranging.lssvm import LssvmRangeModel, fold_predictions, rbf_kernel, solve_lssvm
 
 
 def _eq6_reference(x, y, gamma, kernel_sigma):
@@ -34,6 +34,17 @@ def test_solution_satisfies_kkt_system():
     assert abs(alpha.sum()) < 1e-10 * np.abs(alpha).max()
     e = y - (omega @ alpha + b)
     np.testing.assert_allclose(alpha, gamma * e, rtol=1e-9, atol=1e-10 * np.abs(alpha).max())
+
+
+def test_cross_validation_solutions_equal_the_direct_solve():
+    rng = np.random.default_rng(9)
+    x, y = rng.uniform(100, 250, 80), rng.uniform(0, 9, 80)
+    x_test = rng.uniform(100, 250, 30)
+    gammas = np.array([0.1, 10.0, 1e4])
+    fast = fold_predictions(x, y, x_test, 20.0, gammas)
+    for g, gamma in enumerate(gammas):
+        b, alpha = solve_lssvm(x, y, gamma, 20.0)
+        np.testing.assert_allclose(fast[g], rbf_kernel(x_test, x, 20.0) @ alpha + b, atol=1e-6)
 
 
 def _truth(x):
