@@ -8,6 +8,7 @@ import os
 from pathlib import Path
 
 from graphpos.errors import ConfigError, FileFormatError
+from graphpos.sim.faults import FAULTS
 
 
 def register(sub) -> None:
@@ -29,6 +30,11 @@ def register(sub) -> None:
     p.add_argument("--config", type=Path, metavar="F", help="TOML file of parameter overrides")
     p.add_argument("--rfid-latency", metavar="S|LO:HI",
                    help="delay of RFID and RSU readings in seconds: fixed S, or uniform in LO:HI")
+    p.add_argument("--fault", action="append", default=[], metavar="KIND[:KEY=VALUE...]",
+                   help="inject a fault (repeatable; a kind given twice makes two episodes), e.g. "
+                        "rfid_blackout:start_s=20:duration_s=30, dead_tags:fraction=0.1, "
+                        "dropped_samples:channels=imu+wheel:fraction=0.05. Kinds: " + ", ".join(FAULTS)
+                        + ". A [faults.KIND] table in --config does the same.")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
     p.set_defaults(func=_simulate)
 
@@ -59,6 +65,21 @@ def parse_latency(text: str) -> float | tuple[float, float]:
     raise ConfigError(f"--rfid-latency must be S or LO:HI in seconds, got '{text}'")
 
 
+def parse_fault(text: str) -> tuple[str, dict[str, float | str]]:
+    """``"kind:key=value:key=value"`` -> ``(kind, {key: value})`` (numbers as float)."""
+    kind, *pairs = text.split(":")
+    spec: dict[str, float | str] = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise ConfigError(f"--fault {text}: expected KIND[:KEY=VALUE...], got '{pair}'")
+        try:
+            spec[key] = float(value)
+        except ValueError:
+            spec[key] = value
+    return kind, spec
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from graphpos.io import write_drive
     from graphpos.sim import load_config, simulate
@@ -70,10 +91,17 @@ def _simulate(args: argparse.Namespace) -> int:
         raise FileFormatError(f"{args.output}: cannot write (folder {folder} is not writable)")
     if args.output.is_dir():
         raise FileFormatError(f"{args.output}: is a folder, not a file")
-    overrides = load_config(args.config) if args.config is not None else None
+    overrides = load_config(args.config) if args.config is not None else {}
+    faults = overrides.pop("faults", {})
+    if not isinstance(faults, dict):
+        raise ConfigError(f"{args.config}: 'faults' must be a table of fault kinds")
+    for text in args.fault:
+        kind, spec = parse_fault(text)
+        before = faults.get(kind)
+        faults[kind] = spec if before is None else (before if isinstance(before, list) else [before]) + [spec]
     latency = parse_latency(args.rfid_latency) if args.rfid_latency is not None else None
     drive = simulate(args.scenario, pattern=args.pattern, seed=args.seed, duration_s=args.duration,
-                     overrides=overrides, rfid_latency_s=latency)
+                     overrides=overrides, rfid_latency_s=latency, faults=faults or None)
     write_drive(args.output, drive)
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
     print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s ({counts})")

@@ -10,6 +10,7 @@ import numpy as np
 from graphpos.drive import Channel, Drive, RsuMap, Window
 from graphpos.errors import ConfigError
 from graphpos.sim import sensors
+from graphpos.sim.faults import apply_faults, check_faults
 from graphpos.sim.infrastructure import no_tags, place_rsus, place_tags
 from graphpos.sim.params import apply_overrides, check_params, default_params
 from graphpos.sim.rss import ENVIRONMENTS
@@ -46,7 +47,7 @@ def _runs(t: np.ndarray, mask: np.ndarray, label: str) -> list[Window]:
     return [Window(label, float(t[a]), float(t[b])) for a, b in zip(starts, ends)]
 
 
-def _windows(traj: Trajectory, t: np.ndarray, st: dict[str, np.ndarray]) -> tuple[Window, ...]:
+def _windows(traj: Trajectory, t: np.ndarray, st: dict[str, np.ndarray]) -> list[Window]:
     """``in_tunnel``, ``zone:<name>``, ``turnaround`` and, on routes with a
     curve, ``straight`` / ``curve`` (the road's shape where the vehicle is,
     turnarounds excluded)."""
@@ -61,7 +62,7 @@ def _windows(traj: Trajectory, t: np.ndarray, st: dict[str, np.ndarray]) -> tupl
         _, _, _, k = route.centre(st["route_s"])
         out += _runs(t, on_route & (k == 0), "straight")
         out += _runs(t, on_route & (k != 0), "curve")
-    return tuple(sorted(out, key=lambda w: (w.start_s, w.label)))
+    return out
 
 
 def simulate(
@@ -71,6 +72,7 @@ def simulate(
     duration_s: float | None = None,
     overrides: dict[str, Any] | None = None,
     rfid_latency_s: float | tuple[float, float] | None = None,
+    faults: dict[str, Any] | None = None,
 ) -> Drive:
     """Simulate one drive of a scenario.
 
@@ -90,6 +92,10 @@ def simulate(
     rfid_latency_s : float or (lo, hi), optional
         Delay of RFID and RSU readings: ``arrival_s = t_s + delay``, fixed or
         uniform in (lo, hi) (per read for RFID, per reading for RSUs).
+    faults : dict, optional
+        Fault kind -> parameters (or a list of them for several episodes);
+        see :mod:`graphpos.sim.faults`. Each episode adds a ``fault:<kind>``
+        window; the effective parameters are recorded in ``params["faults"]``.
 
     Raises
     ------
@@ -114,36 +120,36 @@ def simulate(
     m = params["motion"]
     traj = Trajectory(route, lanes, speeds, m["turnaround_radius_m"], m["turnaround_speed_mps"], m["turnaround_accel_mps2"])
     if duration_s is None:
-        duration_s = traj.first_pass_time_s
+        duration_s = round(traj.first_pass_time_s, 6)
     if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) or not math.isfinite(duration_s) or duration_s <= 0:
         raise ConfigError(f"duration must be a positive number of seconds, got {duration_s!r}")
     duration_s = float(duration_s)
+    check_faults(faults, duration_s)
 
     t_truth = sensors.sample_times(duration_s, params["truth"]["rate_hz"])
     st = traj.state(t_truth)
-    channels = {
-        "truth": Channel("truth", {"t_s": t_truth, **{k: st[k] for k in (
-            "east_m", "north_m", "v_east_mps", "v_north_mps", "yaw_rad", "yaw_rate_radps", "accel_x_mps2", "accel_y_mps2")}}),
-        "imu": Channel("imu", sensors.imu(traj, duration_s, params["imu"], sensors.stream(seed, "imu"))),
-        "compass": Channel("compass", sensors.compass(traj, route, duration_s, params["compass"], sensors.stream(seed, "compass"))),
+    truth = {"t_s": t_truth, **{k: st[k] for k in (
+        "east_m", "north_m", "v_east_mps", "v_north_mps", "yaw_rad", "yaw_rate_radps", "accel_x_mps2", "accel_y_mps2")}}
+    cols: dict[str, dict[str, np.ndarray]] = {
+        "imu": sensors.imu(traj, duration_s, params["imu"], sensors.stream(seed, "imu")),
+        "compass": sensors.compass(traj, route, duration_s, params["compass"], sensors.stream(seed, "compass")),
     }
-    wheel_cols, wheel_scale = sensors.wheel(traj, duration_s, params["wheel"], sensors.stream(seed, "wheel"))
-    channels["wheel"] = Channel("wheel", wheel_cols)
+    cols["wheel"], wheel_scale = sensors.wheel(traj, duration_s, params["wheel"], sensors.stream(seed, "wheel"))
     latency_rng = sensors.stream(seed, "latency")
+    env = ENVIRONMENTS[params["rss_environment"]]
 
     tags = place_tags(route, params["tags"]) if "tags" in params else no_tags()
     if "rfid" in params and len(tags):
-        env = ENVIRONMENTS[params["rss_environment"]]
-        cols = sensors.rfid(traj, tags, env, duration_s, params["rfid"], sensors.stream(seed, "rfid"))
-        cols["arrival_s"] = sensors.arrival_times(cols["t_s"], latency, latency_rng, per_epoch=True)
-        channels["rfid"] = Channel("rfid", cols)
-    rsus = place_rsus(route, params["rsu"]) if "rsu" in params else None
-    if rsus is not None and len(rsus):
-        cols = sensors.rsu(traj, route, rsus, duration_s, params["rsu"], sensors.stream(seed, "rsu"))
-        cols["arrival_s"] = sensors.arrival_times(cols["t_s"], latency, latency_rng, per_epoch=False)
-        channels["rsu"] = Channel("rsu", cols)
+        cols["rfid"] = sensors.rfid(traj, tags, env, duration_s, params["rfid"], sensors.stream(seed, "rfid"))
+        cols["rfid"]["arrival_s"] = sensors.arrival_times(cols["rfid"]["t_s"], latency, latency_rng, per_epoch=True)
+    rsus = place_rsus(route, params["rsu"]) if "rsu" in params else RsuMap.empty()
+    if len(rsus):
+        cols["rsu"] = sensors.rsu(traj, route, rsus, duration_s, params["rsu"], sensors.stream(seed, "rsu"))
+        cols["rsu"]["arrival_s"] = sensors.arrival_times(cols["rsu"]["t_s"], latency, latency_rng, per_epoch=False)
     if "gnss" in params:
-        channels["gnss"] = Channel("gnss", sensors.gnss(traj, route, duration_s, params["gnss"], sensors.stream(seed, "gnss")))
+        cols["gnss"] = sensors.gnss(traj, route, duration_s, params["gnss"], sensors.stream(seed, "gnss"))
+    cols, fault_windows, fault_record = apply_faults(cols, faults, float(t_truth[-1]), seed, tags, env.units_per_db)
+    channels = {"truth": Channel("truth", truth), **{name: Channel(name, c) for name, c in cols.items()}}
 
     record = {
         "scenario": scenario,
@@ -151,6 +157,7 @@ def simulate(
         "seed": seed,
         "duration_s": duration_s,
         "rfid_latency_s": list(latency) if isinstance(latency, tuple) else latency,
+        "faults": fault_record,
         **params,
         "realised": {
             "wheel_scale_error": wheel_scale,
@@ -163,7 +170,7 @@ def simulate(
         name=f"{scenario}-{pattern}-seed{seed}",
         channels=channels,
         tags=tags,
-        rsus=rsus if rsus is not None else RsuMap.empty(),
-        windows=_windows(traj, t_truth, st),
+        rsus=rsus,
+        windows=tuple(sorted(_windows(traj, t_truth, st) + fault_windows, key=lambda w: (w.start_s, w.label))),
         params=record,
     )

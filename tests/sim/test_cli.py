@@ -44,6 +44,20 @@ def test_simulate_writes_a_drive_that_reads_back(tmp_path, capsys):
     assert {w.label for w in back.windows} >= {"in_tunnel", "straight", "curve", "zone:tunnel"}
 
 
+def test_simulate_with_faults(tmp_path, capsys):
+    io = pytest.importorskip("graphpos.io")
+    out = tmp_path / "f.mcap"
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[[faults.rfid_blackout]]\nstart_s = 10\nduration_s = 5\n")
+    rc = main(["simulate", "paper-straight", "--config", str(cfg), "--fault", "rfid_blackout:start_s=40:duration_s=10",
+               "--fault", "dropped_samples:channels=imu+wheel:fraction=0.1", "-o", str(out)])
+    assert rc == 0, capsys.readouterr().err
+    back = io.read_drive(out)
+    assert [(w.start_s, w.end_s) for w in back.window("fault:rfid_blackout")] == [(10.0, 15.0), (40.0, 50.0)]
+    assert len(back.window("fault:dropped_samples")) == 1
+    assert len(back.imu) < len(back.truth)
+
+
 #: Bad command lines ({name} is a path made by the test).
 BAD_COMMANDS = """
 simulate nope
@@ -61,6 +75,11 @@ simulate paper-straight --config {bad_toml}
 simulate paper-straight --config {unknown_key}
 simulate paper-straight --config {bad_value}
 simulate paper-straight --output-folder-missing
+simulate paper-straight --fault bogus
+simulate paper-straight --fault wheel_slip:slip
+simulate paper-straight --fault wheel_slip:grip=1
+simulate paper-straight --fault dead_tags:fraction=7
+simulate paper-straight --config {bad_faults}
 simulate paper-straight -o {no_folder}
 simulate paper-straight -o {a_folder}
 simulate paper-straight -o {read_only}
@@ -76,11 +95,12 @@ def test_bad_input_exits_2_with_one_line(argv, tmp_path, capsys):
     (tmp_path / "bad.toml").write_text("[imu\n")
     (tmp_path / "unknown.toml").write_text("[imu]\ngyro = 1\n")
     (tmp_path / "value.toml").write_text("[wheel]\nrate_hz = -3\n")
+    (tmp_path / "faults.toml").write_text("faults = 3\n")
     ro = tmp_path / "ro"
     ro.mkdir()
     ro.chmod(0o500)
     places = {"missing": tmp_path / "none.toml", "bad_toml": tmp_path / "bad.toml", "unknown_key": tmp_path / "unknown.toml",
-              "bad_value": tmp_path / "value.toml", "no_folder": tmp_path / "no" / "d.mcap", "a_folder": tmp_path,
+              "bad_value": tmp_path / "value.toml", "bad_faults": tmp_path / "faults.toml", "no_folder": tmp_path / "no" / "d.mcap", "a_folder": tmp_path,
               "read_only": ro / "d.mcap"}
     argv = [a.format(**places) for a in argv]
     if "-o" not in argv and argv[0] == "simulate" and len(argv) > 1 and "--output-folder-missing" not in argv:
