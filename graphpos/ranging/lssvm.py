@@ -123,6 +123,7 @@ class LssvmRangeModel(RssRangeModel):
     gamma, kernel_sigma : float, optional
         Fixed hyper-parameters; when both are given :meth:`fit` skips the
         cross-validation (the range sigma then comes from in-sample residuals).
+        A model loaded from a file keeps the hyper-parameters it was saved with.
     folds : int
         k of the k-fold cross-validation.
     seed : int
@@ -152,6 +153,7 @@ class LssvmRangeModel(RssRangeModel):
             raise ConfigError(f"cross-validation needs at least 2 folds, got {folds}")
         self.gamma = gamma
         self.kernel_sigma = kernel_sigma
+        self._search = gamma is None  # re-fitting searches again unless fixed by the caller
         self.folds = int(folds)
         self.seed = int(seed)
         self.max_train_samples = int(max_train_samples)
@@ -175,7 +177,7 @@ class LssvmRangeModel(RssRangeModel):
             keep = np.sort(rng.choice(x.size, self.max_train_samples, replace=False))
             x, y = x[keep], y[keep]
         held_out = None
-        if self.gamma is None:
+        if self._search:
             cv = np.sort(rng.choice(x.size, self.cv_samples, replace=False)) if x.size > self.cv_samples else np.arange(x.size)
             self.gamma, self.kernel_sigma, out_of_fold = _cross_validate(x[cv], y[cv], self.folds, rng)
             held_out = (np.maximum(out_of_fold, 0.0), y[cv])

@@ -69,7 +69,10 @@ def test_cross_validation_beats_poor_hyper_parameters():
     def test_mse(model):
         return np.mean((model.fit(x, y).predict_distance_m(x_test) - y_test) ** 2)
 
-    cv = test_mse(LssvmRangeModel(seed=5))
+    searching = LssvmRangeModel(seed=5)
+    cv = test_mse(searching)
+    # a second fit searches again: on inputs ten times wider it picks a ten times wider kernel
+    assert searching.fit(10 * x, y).kernel_sigma == pytest.approx(10 * LssvmRangeModel(seed=5).fit(x, y).kernel_sigma)
     for gamma, kernel_sigma in ((0.01, 50.0), (1e6, 0.02), (1.0, 5.0)):  # too smooth, overfitting, too stiff
         assert cv < test_mse(LssvmRangeModel(gamma, kernel_sigma))
     assert cv < 0.2**2 * 1.15  # near the noise floor
