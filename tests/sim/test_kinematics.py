@@ -74,3 +74,18 @@ def test_path_closes_after_each_lap():
         assert np.hypot(long.truth.east_m[i] - long.truth.east_m[j], long.truth.north_m[i] - long.truth.north_m[j]) < 0.05
         # two left U-turns per lap: yaw is unwrapped and grows by 2 pi
         assert long.truth.yaw_rad[i] - long.truth.yaw_rad[j] == pytest.approx(2 * np.pi * k, abs=0.01)
+
+
+@pytest.mark.parametrize("name", list(SCENARIOS))
+def test_long_drives_are_continuous(name):
+    """No jump where passes and U-turns join, for every pattern. (Tolerance
+    1 mm: the path's arc length is integrated on a 2 cm grid, which is off by
+    a fraction of a millimetre where the curvature steps.)"""
+    for pattern in SCENARIOS[name].patterns:
+        first = simulate(name, pattern, seed=0, duration_s=1.0).params["realised"]
+        drive = simulate(name, pattern, seed=0, duration_s=first["lap_duration_s"] * 1.2)
+        truth = drive.truth
+        step = np.hypot(np.diff(truth.east_m), np.diff(truth.north_m))
+        speed = np.hypot(truth.v_east_mps, truth.v_north_mps)
+        assert np.all(step <= 0.5 * (speed[1:] + speed[:-1]) * 0.01 + 1e-3), pattern
+        assert np.abs(np.diff(truth.yaw_rad)).max() < 0.01, pattern
