@@ -133,12 +133,19 @@ class LinearCalibration(RangeModel):
         if ok.sum() < 2:
             raise ConfigError("need at least two readings with true distances to fit a calibration")
         r, d = reading[ok], true_distance_m[ok]
+        if np.ptp(d) == 0:
+            raise ConfigError("need readings at more than one true distance to fit a calibration")
         scale, offset = np.polyfit(d, r, 1)  # r = scale * d + offset
+        if not scale > 0:
+            raise ConfigError(f"fitted range scale {scale:.3g} is not positive: the readings do not grow with distance")
         self.scale, self.offset_m = float(scale), float(offset)
-        resid = np.abs(self.predict_distance_m(r) - d)
-        # sigma(d) = a + b d from absolute residuals (E|e| = sigma sqrt(2/pi))
-        b, a = np.polyfit(d, resid * np.sqrt(np.pi / 2), 1)
-        self.sigma0_m, self.sigma_slope = max(float(a), 1e-3), max(float(b), 0.0)
+        resid = self.predict_distance_m(r) - d
+        # sigma(d) = a + b d from absolute residuals (E|e| = sigma sqrt(2/pi));
+        # a spread that does not grow with distance is a constant: the RMS
+        b, a = np.polyfit(d, np.abs(resid) * np.sqrt(np.pi / 2), 1)
+        if b < 0:
+            a, b = np.sqrt(np.mean(resid**2)), 0.0
+        self.sigma0_m, self.sigma_slope = max(float(a), 1e-3), float(b)
         return self
 
     def predict_distance_m(self, reading: np.ndarray) -> np.ndarray:

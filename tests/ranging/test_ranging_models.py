@@ -181,3 +181,17 @@ def test_range_errors_by_band():
     assert rows[0].z_rms == pytest.approx(0.5 / 0.4)
     assert rows[3].beyond_3_sigma == 0.0 and rows[-1].beyond_3_sigma == pytest.approx(0.0)
     assert rows[-1].rms_m == pytest.approx(np.sqrt(np.mean(np.array([0.5, 0.5, 0.3, 0.3, 1.2, 0]) ** 2)))
+
+
+def test_linear_calibration_bad_inputs_and_constant_spread():
+    with pytest.raises(ConfigError, match="more than one true distance"):
+        LinearCalibration().fit(np.array([1.0, 1.1]), np.array([1.0, 1.0]))
+    with pytest.raises(ConfigError, match="not positive"):
+        LinearCalibration().fit(np.array([3.0, 2.0, 1.0]), np.array([1.0, 2.0, 3.0]))
+    with pytest.raises(ConfigError, match="positive"):
+        LinearCalibration(scale=0.0)
+    # noise that does not grow with distance: sigma is its RMS, no slope
+    d = np.linspace(1, 50, 400)
+    noise = np.where(np.arange(400) % 2 == 0, 0.4, -0.4)
+    model = LinearCalibration().fit(d + noise * np.linspace(1.2, 0.8, 400), d)
+    assert model.sigma_slope == 0.0 and model.sigma0_m == pytest.approx(0.4, rel=0.05)
