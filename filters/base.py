@@ -2,6 +2,7 @@
 
 A :class:`FilterEstimator` subclass implements a few handlers
 (``_predict_to``, ``_on_imu``, ``_on_wheel``, ``_on_compass``, ``_on_scan``,
+``_on_fix`` for ``gnss`` / ``rsu`` rows,
 ``_output``) and gets, from this base:
 
 * asynchronous multi-rate processing: each measurement is applied at its own
@@ -36,6 +37,13 @@ from graphpos.drive import Drive, Measurement
 from graphpos.errors import MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator, _with_wall_time
+
+
+#: Columns handed to :meth:`FilterEstimator._on_fix` for each position-fix channel.
+_FIX_CHANNELS = {
+    "gnss": ("east_m", "north_m", "sigma_m"),
+    "rsu": ("rsu_id", "east_m", "north_m", "range_m", "sigma_m"),
+}
 
 
 class InitialPose:
@@ -95,6 +103,10 @@ class FilterEstimator(Estimator):
     def _on_compass(self, t_s: float, yaw_rad: float) -> None:
         pass
 
+    def _on_fix(self, t_s: float, channel: str, values: tuple[float, ...]) -> None:
+        """A ``gnss`` or ``rsu`` row: ``values`` are its columns after ``t_s``
+        in :data:`graphpos.drive.CHANNEL_SPECS` order."""
+
     def _on_scan(self, t_s: float, tags_en_m: np.ndarray, ranges_m: np.ndarray, sigmas_m: np.ndarray) -> None:
         pass
 
@@ -152,6 +164,8 @@ class FilterEstimator(Estimator):
                 self._on_wheel(t, v["speed_mps"])
             elif m.channel == "compass":
                 self._on_compass(t, v["yaw_rad"])
+            elif m.channel in _FIX_CHANNELS:
+                self._on_fix(t, m.channel, tuple(v[c] for c in _FIX_CHANNELS[m.channel]))
         return self._rows[n0:]
 
     def finish(self) -> Estimate:
@@ -236,6 +250,8 @@ class FilterEstimator(Estimator):
                 cols.append((ch.t_s.tolist(), ch.speed_mps.tolist()))
             elif name == "compass":
                 cols.append((ch.t_s.tolist(), ch.yaw_rad.tolist()))
+            elif name in _FIX_CHANNELS:
+                cols.append((ch.t_s.tolist(), list(zip(*(ch[c].tolist() for c in _FIX_CHANNELS[name])))))
             elif name == "rfid":
                 d, s = self._range_model.ranges(ch)
                 cols.append((ch.t_s.tolist(), ch.arrival_s.tolist(), ch.tag_id.astype(np.int64).tolist(), d, s))
@@ -258,6 +274,10 @@ class FilterEstimator(Estimator):
                 ts, y = cols[c]
                 t = self._advance(ts[r])
                 self._on_compass(t, y[r])
+            elif kind in _FIX_CHANNELS:
+                ts, vals = cols[c]
+                t = self._advance(ts[r])
+                self._on_fix(t, kind, vals[r])
             elif kind == "rfid":
                 ts, arr, ids, d, s = cols[c]
                 j = i + 1
