@@ -188,9 +188,12 @@ class Trajectory:
             v_end = speeds.at(end_s)
             v_turn = min(turnaround_speed_mps, v_end)
             ext = max(abs(v_end**2 - v_turn**2) / (2 * turnaround_accel_mps2), 2.0)
-            d_from = float(lanes.forward_offset(np.array([end_s]), +1 if start is out else -1)[0][0])
-            d_to = float(lanes.forward_offset(np.array([end_s]), -1 if start is out else +1)[0][0])
-            shift = (d_to - d_from) if start is out else (d_from - d_to)
+            # lateral shift from the arriving lane to the leaving one, to the
+            # left of the arriving direction (+1 outbound, -1 returning)
+            direction = +1 if start is out else -1
+            d_from = float(lanes.forward_offset(np.array([end_s]), direction)[0][0])
+            d_to = float(lanes.forward_offset(np.array([end_s]), -direction)[0][0])
+            shift = direction * (d_to - d_from)
             pose = (float(start.x[-1]), float(start.y[-1]), float(start.psi[-1]))
             turn = _turnaround_piece(pose, ext, turnaround_radius_m, shift, end_s, int(start.zone[-1]))
             bulb = float(turn.sigma[-1]) - 2 * ext
