@@ -17,7 +17,9 @@ shares the information back (eq. 19, ``P_i = P_g / beta_i``,
 ``Q_i = Q / beta_i``, ``x_i = x_g``, :func:`filters.core.federated.share_information`).
 Because the reset happens every step and the model is linear, sharing after
 the time update is the same as sharing before it, so one prediction of the
-global state serves the three local filters.
+global state serves the three local filters; local filters without a
+measurement in a step hold that shared prediction, and enter the fusion as
+one estimate with their summed share (the same information, fewer inverses).
 
 Fault detection and isolation (liu2016 §3.2.2, not given as equations — the
 project's design): every local measurement is tested against the global
@@ -31,9 +33,10 @@ one). It keeps being tested and is restored after ``recover_after``
 consecutive passes (one pass after a no-data isolation). Isolation
 intervals are reported in the diagnostics.
 
-Timing: the filter steps at the output rate (10 Hz); GNSS/RSU fixes of the
-step are applied at its end, the gyro rate and wheel speed of the step are
-averaged (``s = mean speed * T``). The state starts from the drive's initial
+Timing: the filter steps at the output epochs (10 Hz; the multi-rate plumbing
+is :class:`filters.base.FilterEstimator`'s) and at each GNSS/RSU fix, which
+is applied at its own time; the gyro rate and wheel speed since the last
+step are averaged into the DR observation (``s = mean speed * T``). The state starts from the drive's initial
 pose, like every filter of the project.
 """
 
@@ -44,16 +47,21 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from filters.base import InitialPose
+from filters.base import FilterEstimator, InitialPose
 from filters.core import ekf, federated
 from filters.models import kinematic as km
-from graphpos.drive import Drive, Measurement
+from graphpos.drive import Drive
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
-from graphpos.estimator import Estimator
 
 SUBSYSTEMS = ("rsu", "gnss", "dr")
 _POS = [km.XE, km.XN]
+_NO_ANCHOR = np.zeros(0)
+
+
+def _position_fix(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """liu2016 eq. (6)-(7): ``Z = H x`` with ``H`` the 6-state position rows."""
+    return km.CS_POSITION_H @ x, km.CS_POSITION_H
 
 
 @dataclass
@@ -92,6 +100,10 @@ class Liu2016Config:
         Initial 1-sigmas around the starting pose.
     init_unknown_speed_sigma_mps : float
         Initial velocity 1-sigma when the start comes from GNSS (no velocity).
+    coast : bool
+        Output while every subsystem is isolated (pure prediction). The
+        single-subsystem baselines turn it off: a positioning system without
+        data gives no position.
     """
 
     subsystems: tuple[str, ...] = SUBSYSTEMS
@@ -109,6 +121,7 @@ class Liu2016Config:
     init_position_sigma_m: float = 0.5
     init_speed_sigma_mps: float = 0.3
     init_unknown_speed_sigma_mps: float = 10.0
+    coast: bool = True
     init_accel_sigma_mps2: float = 1.0
 
     def __post_init__(self) -> None:
@@ -147,12 +160,13 @@ class _Health:
         self.intervals[-1][1] = t_s
 
 
-class FederatedKf(Estimator):
+class FederatedKf(FilterEstimator):
     """liu2016 federated KF over RSU fixes, GNSS fixes and DR (gyro + odometer)."""
 
     name = "fkf"
     summary = "liu2016 federated KF: RSU + GNSS linear KFs, DR EKF, information sharing, fault isolation (10 Hz)"
     optional_channels = ("imu", "wheel", "rsu", "gnss")
+    config: Liu2016Config
 
     @classmethod
     def default_config(cls) -> Liu2016Config:
@@ -161,82 +175,91 @@ class FederatedKf(Estimator):
     def check(self, drive: Drive) -> None:
         subs = self.config.subsystems
         if not (drive.has("rsu") or drive.has("gnss")):
-            raise MissingChannelError(f"{self.name} needs position fixes (rsu or gnss channel) to start; drive '{drive.name}' has neither")
+            raise MissingChannelError(f"{self.name} needs position fixes (rsu or gnss channel); drive '{drive.name}' has neither")
         if "dr" in subs and not (drive.has("imu") and drive.has("wheel")):
             raise MissingChannelError(f"{self.name}'s DR subsystem needs the imu and wheel channels, which drive '{drive.name}' lacks")
 
-    # -- online -------------------------------------------------------------
-    def start(self, drive: Drive) -> None:
+    # -- handlers ---------------------------------------------------------------
+    def _init_filter(self, drive: Drive, t0_s: float) -> None:
+        """Start from the drive's initial pose (:class:`filters.base.InitialPose`;
+        the paper sets the DR start by hand). From GNSS the velocity is
+        unknown: it starts at 0 with ``init_unknown_speed_sigma_mps``."""
         cfg = self.config
         self._dt = 1.0 / cfg.output_rate_hz
         self._rsus = {int(i): np.array([e, n]) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
         self._Q = km.current_statistical_process_noise(self._dt, cfg.accel_sigma_mps2, cfg.accel_sigma_mps2, cfg.accel_tau_s, cfg.accel_tau_s)
-        self._epoch_end: float | None = None
-        self._x: np.ndarray | None = None
-        self._P: np.ndarray | None = None
-        self._drive = drive
+        self._health = {s: _Health(last_data_s=t0_s) for s in cfg.subsystems}
+        self._sharing = {s: cfg.sharing[SUBSYSTEMS.index(s)] for s in cfg.subsystems}
+        pose = InitialPose(drive, t0_s)
+        self._x = np.array([pose.east_m, pose.v_east_mps, 0.0, pose.north_m, pose.v_north_mps, 0.0])
+        sv = cfg.init_speed_sigma_mps if pose.from_truth else cfg.init_unknown_speed_sigma_mps
+        sp, sa = cfg.init_position_sigma_m, cfg.init_accel_sigma_mps2
+        self._P = np.diag(np.square([sp, sv, sa, sp, sv, sa]))
+        self._t_state = t0_s
+        self._yaw = pose.yaw_rad
         self._reset_epoch()
-        self._health = {s: _Health() for s in cfg.subsystems}
-        self._rows: list[OutputRow] = []
 
     def _reset_epoch(self) -> None:
         self._fixes: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {"rsu": [], "gnss": []}
         self._gyro: list[float] = []
         self._speed: list[float] = []
 
-    def process(self, measurement: Measurement) -> list[OutputRow]:
-        t = measurement.arrival_s
-        if self._epoch_end is None:
-            self._epoch_end = math.floor(t / self._dt) * self._dt + self._dt
-        out: list[OutputRow] = []
-        while t > self._epoch_end + 1e-9:
-            row = self._close_epoch(self._epoch_end)
-            if row is not None:
-                out.append(row)
-            self._epoch_end += self._dt
-        v = measurement.values
-        ch = measurement.channel
-        if ch == "imu":
-            self._gyro.append(v["yaw_rate_radps"])
-        elif ch == "wheel":
-            self._speed.append(v["speed_mps"])
-        elif ch in ("rsu", "gnss"):
-            row = self._fix_row(ch, v)
-            if row is not None:
-                self._fixes[ch].append(row)
-        return out
+    def _on_imu(self, t_s, accel_x, accel_y, yaw_rate):
+        self._gyro.append(yaw_rate)
+
+    def _on_wheel(self, t_s, speed_mps):
+        self._speed.append(speed_mps)
+
+    def _on_fix(self, t_s, channel, values):
+        """A fix is applied at its own time: the federated filter steps to it."""
+        if channel == "gnss":
+            east, north, sigma = values
+            self._fixes["gnss"].append((np.array([east, north]), np.array([sigma**2, sigma**2]), _NO_ANCHOR))
+        else:
+            rsu_id, east, north, range_m, sigma = values
+            if math.isfinite(east) and math.isfinite(north):
+                self._fixes["rsu"].append((np.array([east, north]), np.array([sigma**2, sigma**2]), _NO_ANCHOR))
+            elif math.isfinite(range_m):
+                self._fixes["rsu"].append((np.array([range_m]), np.array([sigma**2]), self._rsus[int(rsu_id)]))
+        self._step_to(t_s)
+
+    def _step_to(self, t_s: float) -> None:
+        fixes, gyro, speed = self._fixes, self._gyro, self._speed
+        self._reset_epoch()
+        self._step(t_s, fixes, gyro, speed)
+        self._t_state = max(self._t_state, t_s)
+
+    def _output(self, t_s: float) -> OutputRow | None:
+        if t_s > self._t_state:
+            self._step_to(t_s)
+        if not self.config.coast and all(h.isolated for h in self._health.values()):
+            return None
+        x, P = self._x, self._P
+        if math.hypot(x[km.CVE], x[km.CVN]) > self.config.dr_min_speed_mps:
+            self._yaw = math.atan2(x[km.CVN], x[km.CVE])
+        cov = P[np.ix_(_POS, _POS)].copy()
+        return OutputRow(t_s, float(x[km.XE]), float(x[km.XN]), float(x[km.CVE]), float(x[km.CVN]), self._yaw, cov)
 
     def finish(self) -> Estimate:
-        if self._epoch_end is not None:
-            self._close_epoch(self._epoch_end)
-        end = self._rows[-1].t_s if self._rows else 0.0
-        diagnostics = {}
+        end = self._t_state
+        subsystems = {}
         for name, h in self._health.items():
             intervals = [[a, b if b is not None else end, r] for a, b, r in h.intervals]
-            diagnostics[name] = {
+            subsystems[name] = {
                 "isolations": intervals,
                 "isolated_s": float(sum(b - a for a, b, _ in intervals)),
                 "tested": h.tested,
                 "rejected": h.rejected,
             }
-        return Estimate.from_rows(self.name, self._rows, rate_hz=self.config.output_rate_hz, diagnostics={"subsystems": diagnostics})
-
-    # -- measurements -----------------------------------------------------------
-    def _fix_row(self, ch: str, v: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """``(z, R-diagonal, rsu position or empty)`` of one fix or range reading."""
-        sigma2 = v["sigma_m"] ** 2
-        if math.isfinite(v["east_m"]) and math.isfinite(v["north_m"]):
-            return np.array([v["east_m"], v["north_m"]]), np.array([sigma2, sigma2]), np.zeros(0)
-        if ch == "rsu" and math.isfinite(v.get("range_m", math.nan)):
-            return np.array([v["range_m"]]), np.array([sigma2]), self._rsus[int(v["rsu_id"])]
-        return None
+        self.diagnostics["subsystems"] = subsystems
+        return super().finish()
 
     @staticmethod
     def _fix_model(anchor: np.ndarray):
         """``x -> (h(x), H)`` of a position fix (eq. 6-7, ``anchor`` empty) or
         of a range to the RSU at ``anchor``."""
         if anchor.size == 0:
-            return lambda x: (km.CS_POSITION_H @ x, km.CS_POSITION_H)
+            return _position_fix
 
         def rsu_range(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             d = np.array([x[km.XE] - anchor[0], x[km.XN] - anchor[1]])
@@ -248,38 +271,13 @@ class FederatedKf(Estimator):
         return rsu_range
 
     # -- one step -----------------------------------------------------------------
-    def _close_epoch(self, t_s: float) -> OutputRow:
-        fixes, gyro, speed = self._fixes, self._gyro, self._speed
-        self._reset_epoch()
-        if self._x is None:
-            self._initialise(t_s)
-        else:
-            self._step(t_s, fixes, gyro, speed)
-        x, P = self._x, self._P
-        sp = math.hypot(x[km.CVE], x[km.CVN])
-        yaw = math.atan2(x[km.CVN], x[km.CVE]) if sp > self.config.dr_min_speed_mps else (self._rows[-1].yaw_rad if self._rows else 0.0)
-        cov = P[np.ix_(_POS, _POS)].copy()
-        row = OutputRow(t_s, float(x[km.XE]), float(x[km.XN]), float(x[km.CVE]), float(x[km.CVN]), yaw, cov)
-        self._rows.append(row)
-        return row
-
-    def _initialise(self, t_s: float) -> None:
-        """The drive's initial pose (:class:`filters.base.InitialPose`; the
-        paper sets the DR start by hand). From GNSS the velocity is unknown:
-        it starts at 0 with ``init_unknown_speed_sigma_mps``."""
-        cfg = self.config
-        pose = InitialPose(self._drive, t_s)
-        self._x = np.array([pose.east_m, pose.v_east_mps, 0.0, pose.north_m, pose.v_north_mps, 0.0])
-        sv = cfg.init_speed_sigma_mps if pose.from_truth else cfg.init_unknown_speed_sigma_mps
-        sp, sa = cfg.init_position_sigma_m, cfg.init_accel_sigma_mps2
-        self._P = np.diag(np.square([sp, sv, sa, sp, sv, sa]))
-        for h in self._health.values():
-            h.last_data_s = t_s
-
     def _step(self, t_s: float, fixes: dict, gyro: list[float], speed: list[float]) -> None:
         cfg = self.config
-        x_pred, Phi = km.current_statistical_prediction(self._x, self._dt)  # eq. 16
-        _, P_pred = ekf.predict(x_pred, Phi, self._P, self._Q)  # eq. 12
+        T = max(t_s - self._t_state, 0.0)
+        Q = self._Q if abs(T - self._dt) < 1e-9 else km.current_statistical_process_noise(
+            T, cfg.accel_sigma_mps2, cfg.accel_sigma_mps2, cfg.accel_tau_s, cfg.accel_tau_s)
+        x_pred, Phi = km.current_statistical_prediction(self._x, T)  # eq. 16
+        _, P_pred = ekf.predict(x_pred, Phi, self._P, Q)  # eq. 12
         # local measurements of this step: subsystem -> [(z, R diagonal, h)]
         local: dict[str, list] = {}
         for ch in ("rsu", "gnss"):
@@ -287,10 +285,10 @@ class FederatedKf(Estimator):
                 local[ch] = [(z, R, self._fix_model(anchor)) for z, R, anchor in fixes[ch]]
         if "dr" in self._health:
             local["dr"] = []
-            if gyro and speed and math.hypot(x_pred[km.CVE], x_pred[km.CVN]) > cfg.dr_min_speed_mps:
-                z = np.array([np.mean(gyro), np.mean(speed) * self._dt])
-                R = np.array([cfg.gyro_sigma_radps**2, (cfg.odometer_sigma_mps * self._dt) ** 2])
-                local["dr"].append((z, R, lambda x: km.dr_observation(x, self._dt)))  # eq. 8-10
+            if T > 0 and gyro and speed and math.hypot(x_pred[km.CVE], x_pred[km.CVN]) > cfg.dr_min_speed_mps:
+                z = np.array([sum(gyro) / len(gyro), sum(speed) / len(speed) * T])
+                R = np.array([cfg.gyro_sigma_radps**2, (cfg.odometer_sigma_mps * T) ** 2])
+                local["dr"].append((z, R, lambda x: km.dr_observation(x, T)))  # eq. 8-10
             elif gyro and speed:
                 self._health["dr"].last_data_s = t_s  # data, unusable at this speed
         # fault detection against the global prediction
@@ -318,21 +316,30 @@ class FederatedKf(Estimator):
                         h.isolate(t_s, "inconsistent")
             if t_s - h.last_data_s > cfg.no_data_timeout_s:
                 h.isolate(t_s, "no data")
-        # information sharing (eq. 19) over the subsystems not isolated
-        active = [s for s in cfg.subsystems if not self._health[s].isolated]
+        # information sharing (eq. 19) over the subsystems not isolated:
+        # P_i = P_g / beta_i, with the isolated shares redistributed
+        active = [n for n in cfg.subsystems if not self._health[n].isolated]
         if not active:
             self._x, self._P = x_pred, P_pred
             return
-        share = np.array([cfg.sharing[SUBSYSTEMS.index(s)] for s in active])
-        shared = federated.share_information(P_pred, self._Q, share / share.sum())
+        total = sum(self._sharing[n] for n in active)
         estimates = []
-        for name, (P_i, _) in zip(active, shared):
-            x_i = x_pred
+        idle_share = 0.0
+        for name in active:
+            beta = self._sharing[name] / total
+            if not accepted[name]:
+                idle_share += beta
+                continue
+            x_i, P_i = x_pred, P_pred / beta
             for z, R, model in accepted[name]:  # eq. 13-15 / 17
                 zp, H = model(x_i)
                 upd = ekf.update(x_i, P_i, z, zp, H, R)
                 x_i, P_i = upd.x, upd.P
             estimates.append((x_i, P_i))
+        if idle_share > 0:
+            # local filters without a measurement this step hold the shared
+            # prediction; their information adds up to one estimate
+            estimates.append((x_pred, P_pred / idle_share))
         self._x, self._P = federated.fuse(estimates)  # eq. 18
 
 

@@ -90,11 +90,13 @@ def test_zones_isolate_the_missing_subsystem_and_beat_single_subsystems():
     diag = fkf.diagnostics["subsystems"]
     assert any(s[2] == "no data" and s[0] < 10 for s in diag["rsu"]["isolations"])  # no RSU in the open
     assert any(s[2] == "no data" and 40 < s[0] < 50 for s in diag["gnss"]["isolations"])  # GNSS blocked in the tunnel
-    singles = {s: FederatedKf(Liu2016Config(subsystems=(s,))).run(drive) for s in ("rsu", "gnss", "dr")}
+    singles = {s: FederatedKf(Liu2016Config(subsystems=(s,), coast=False)).run(drive) for s in ("rsu", "gnss", "dr")}
     for w in drive.windows:
         ours = drms2(errors(fkf, drive, w.start_s + 5, w.end_s))
         for name, est in singles.items():
-            assert ours < drms2(errors(est, drive, w.start_s + 5, w.end_s)) + 1e-9, (w.label, name)
+            theirs = errors(est, drive, w.start_s + 5, w.end_s)
+            if theirs.size > 50:  # the subsystem works in this zone
+                assert ours < drms2(theirs), (w.label, name)
 
 
 def test_config_and_drive_errors():
@@ -104,3 +106,48 @@ def test_config_and_drive_errors():
     no_fixes = drive.replace(channels={k: v for k, v in drive.channels.items() if k not in ("gnss", "rsu")})
     with pytest.raises(MissingChannelError):
         FederatedKf().run(no_fixes)
+
+
+def test_fast_run_equals_the_process_loop():
+    from graphpos.estimator import Estimator
+
+    drive = make_drive(duration_s=30.0, gnss_bias=(10.0, 20.0, 15.0), rsu_all_along=True, seed=5)
+    fast = FederatedKf().run(drive)
+    loop = Estimator.run(FederatedKf(), drive)
+    np.testing.assert_array_equal(fast.t_s, loop.t_s)
+    np.testing.assert_allclose(fast.position, loop.position, rtol=0, atol=1e-12)
+    assert fast.diagnostics == loop.diagnostics
+
+
+# -- simulated urban-rsu-gnss drives (liu2016 §3) ---------------------------------
+
+def test_urban_zones_isolation_and_single_subsystems():
+    """Over seeds 0-2 (per-zone 2DRMS averaged): fkf beats every single
+    subsystem where that subsystem works, and meets liu2016's 2DRMS <= 2 m
+    in the open and in the tunnel."""
+    from eval.metrics import evaluate_estimate
+    from graphpos.sim import simulate
+
+    zones = ("zone:open", "zone:tunnel", "zone:street")
+    ours, theirs = [], {name: [] for name in ("rsu", "gnss", "dr")}
+    for seed in range(3):
+        drive = simulate("urban-rsu-gnss", seed=seed)
+        fkf = FederatedKf().run(drive)
+        iso = fkf.diagnostics["subsystems"]
+        tunnel = drive.window("zone:tunnel")[0]
+        # GNSS blocked in the tunnel, no RSU in the open
+        assert any(r == "no data" and tunnel.start_s <= a <= tunnel.start_s + 5 for a, _, r in iso["gnss"]["isolations"])
+        assert any(r == "no data" and a <= tunnel.start_s for a, _, r in iso["rsu"]["isolations"])
+        w = evaluate_estimate(drive, fkf)["windows"]
+        ours.append([w[z]["position"]["drms2_m"] for z in zones])
+        for name in theirs:
+            w = evaluate_estimate(drive, FederatedKf(Liu2016Config(subsystems=(name,), coast=False)).run(drive))["windows"]
+            # only where the subsystem works (gives positions for 10 s or more)
+            theirs[name].append([w[z]["position"]["drms2_m"] if w[z]["position"]["n"] >= 100 else np.nan for z in zones])
+    ours = np.mean(ours, axis=0)
+    for name, values in theirs.items():
+        values = np.array(values)
+        for k, zone in enumerate(zones):
+            if np.isfinite(values[:, k]).all():
+                assert ours[k] < values[:, k].mean(), (name, zone)
+    assert ours[0] <= 2.0 and ours[1] <= 2.0, ours

@@ -168,3 +168,48 @@ def test_imm_prefers_ct_in_the_curve():
     mp = ImmStekf(range_model=IDENTITY).run(drive).diagnostics["model_probabilities"]
     t = np.asarray(mp["t_s"])
     assert np.mean(np.asarray(mp["ct"])[t > 17]) > np.mean(np.asarray(mp["ct"])[(t > 3) & (t < 15)])
+
+
+@pytest.mark.parametrize("cls", [LmsFederated, ImmStekf])
+def test_fast_run_equals_the_process_loop(cls):
+    from graphpos.estimator import Estimator
+
+    drive = make_drive(duration_s=20.0, turn_start_s=8.0, yaw_rate_radps=0.1, range_sigma_m=0.5, sensor_noise=True)
+    fast = cls(range_model=IDENTITY).run(drive)
+    loop = Estimator.run(cls(range_model=IDENTITY), drive)
+    np.testing.assert_array_equal(fast.t_s, loop.t_s)
+    np.testing.assert_allclose(fast.position, loop.position, rtol=0, atol=1e-12)
+
+
+# -- simulated paper-imm drives (song2014 §5) -----------------------------------
+
+def _paper_imm(seeds, **overrides):
+    from graphpos.sim import simulate
+
+    return [simulate("paper-imm", seed=s, overrides=overrides or None) for s in seeds]
+
+
+def _window_rms(est, drive, label):
+    from eval.metrics import evaluate_estimate
+
+    return evaluate_estimate(drive, est)["windows"][label]["position"]["rms_m"]
+
+
+def test_lms_federated_beats_multilateration_in_the_tunnel():
+    from filters.song2016 import Multilateration
+
+    drives = _paper_imm(range(4, 8))
+    lms = np.mean([_window_rms(LmsFederated().run(d), d, "in_tunnel") for d in drives])
+    multi = np.mean([_window_rms(Multilateration().run(d), d, "in_tunnel") for d in drives])
+    assert lms < 0.95 * multi
+
+
+def test_imm_beats_stekf_beats_ekf_on_the_curve_with_uncompensated_accelerometers():
+    # Accelerometer bias 0.2 m/s^2 (1-sigma): an in-car MEMS unit whose
+    # mounting tilt and the road grade leak gravity into a_x, a_y — the
+    # "unrealistic noise description" under which song2014 §5.3.2 compares
+    # the filters. (With the simulator's default 0.02 m/s^2 the three are
+    # within 0.15 m of each other; see the benchmark.)
+    drives = _paper_imm(range(4, 8), imu={"accel_bias_sigma_mps2": 0.2})
+    curve = {cls.name: np.mean([_window_rms(cls().run(d), d, "curve") for d in drives]) for cls in (EkfCa, StekfCa, ImmStekf)}
+    assert curve["imm-stekf"] < curve["stekf-ca"] < curve["ekf-ca"], curve
