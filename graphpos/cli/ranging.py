@@ -25,6 +25,8 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=None, help="seed of the simulated collections (default 2016)")
     p.add_argument("--json", action="store_true",
                    help="print {environment: {lssvm: {mean, std, ...}, propagation: {...}}} as JSON")
+    p.add_argument("--plot", type=Path, default=None, metavar="FILE.png",
+                   help="also write the fitted curves and distance errors (song2016 Fig. 6 and 7)")
     p.set_defaults(func=_table1)
 
     p = commands.add_parser("fit", help="fit a range model to a drive with truth",
@@ -60,8 +62,14 @@ def _table1(args: argparse.Namespace) -> int:
     seed = CALIBRATION_SEED if args.seed is None else args.seed
     if seed < 0:
         raise ConfigError(f"--seed must be non-negative, got {seed}")
+    if args.plot is not None and not args.plot.parent.is_dir():
+        raise ConfigError(f"{args.plot.parent}: no such folder for the figure")
     figures = table1(seed)
     print(json.dumps(figures, indent=1) if args.json else format_table1(figures, seed))
+    if args.plot is not None:
+        from graphpos.ranging.figures import plot_calibration
+
+        plot_calibration(seed, args.plot)
     return 0
 
 

@@ -39,10 +39,12 @@ def test_table1_json(capsys):
             assert np.isfinite(row[kind]["mean"]) and row[kind]["std"] > 0
 
 
-def test_table1_text_shows_paper_figures(capsys):
-    assert main(["ranging", "table1"]) == 0
+def test_table1_text_shows_paper_figures_and_plots(capsys, tmp_path):
+    figure = tmp_path / "fig6-7.png"
+    assert main(["ranging", "table1", "--plot", str(figure)]) == 0
     out = capsys.readouterr().out
     assert "10.43" in out and "tunnel" in out
+    assert figure.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_fit_writes_a_loadable_model(tmp_path, capsys):
@@ -71,6 +73,7 @@ def test_fit_writes_a_loadable_model(tmp_path, capsys):
         (["ranging", "check", "NOTRUTH"], "no truth"),
         (["ranging", "check", "DRIVE", "--range-model", "missing.json"], "no such range-model file"),
         (["ranging", "table1", "--seed", "-3"], "non-negative"),
+        (["ranging", "table1", "--plot", "nowhere/f.png"], "no such folder"),
     ],
 )
 def test_user_mistakes_exit_2(argv, message, tmp_path, capsys, monkeypatch):
