@@ -176,3 +176,22 @@ def test_rfid_outliers():
         return float(np.mean(np.abs(resid) > limit))
 
     assert wild_fraction(0.2) > 5 * max(wild_fraction(0.0), 0.002)
+
+
+@pytest.mark.slow
+def test_gnss_street_multipath_over_an_hour():
+    """liu2016's street: fixes biased left of the road by bias_m on average,
+    heavier-tailed than a Gaussian (kurtosis well above 3)."""
+    drive = simulate("urban-rsu-gnss", seed=28, duration_s=3600.0)
+    z = drive.params["gnss"]["zones"]["street"]
+    g, truth = drive.gnss, drive.truth
+    k = np.searchsorted(truth.t_s, g.t_s)
+    m = np.zeros(g.t_s.size, bool)
+    for w in drive.window("zone:street"):
+        m |= w.contains(g.t_s)
+    de, dn = g.east_m[m] - truth.east_m[k][m], g.north_m[m] - truth.north_m[k][m]
+    # the street runs north after the left turn: the road's left is west (on both passes: bias fixed in space)
+    assert -np.mean(de) == pytest.approx(z["bias_m"], abs=0.5)
+    white = np.diff(dn)  # differencing removes the slow wander and the bias
+    kurtosis = np.mean((white - white.mean()) ** 4) / np.var(white) ** 2
+    assert kurtosis > 4.0
