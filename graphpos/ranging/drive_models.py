@@ -52,7 +52,8 @@ def calibrated_model(environment: str, kind: str = "lssvm", seed: int = CALIBRAT
     collection ``[seed, 2]`` (:data:`SIGMA_COLLECTION`: other tags). Cached
     per (environment, kind, seed); each call returns a copy.
     """
-    return type(_calibrated(environment, kind, seed)).from_dict(_calibrated(environment, kind, seed).to_dict())
+    cached = _calibrated(environment, kind, seed)
+    return type(cached).from_dict(cached.to_dict())
 
 
 @functools.cache
