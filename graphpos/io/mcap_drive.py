@@ -209,7 +209,8 @@ def _encode_rows(names: Sequence[str], texts: Sequence[list[str]]) -> list[bytes
 
 
 def _time_ns(t_s: np.ndarray, base_s: float) -> np.ndarray:
-    ns = np.round((np.asarray(t_s, dtype=np.float64) - base_s) * 1e9)
+    with np.errstate(over="ignore", invalid="ignore"):
+        ns = np.round((np.asarray(t_s, dtype=np.float64) - base_s) * 1e9)
     return np.clip(np.nan_to_num(ns, nan=0.0), 0.0, _MAX_UINT64_NS).astype(np.uint64)
 
 
@@ -221,7 +222,8 @@ def _thin(t_s: np.ndarray, rate_hz: float) -> np.ndarray:
     """Indexes of the first sample of each 1/rate_hz bin."""
     if t_s.size == 0:
         return np.zeros(0, dtype=np.int64)
-    bins = np.floor(np.asarray(t_s) * rate_hz)
+    with np.errstate(over="ignore", invalid="ignore"):
+        bins = np.floor(np.asarray(t_s) * rate_hz)
     return np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])
 
 
@@ -386,7 +388,8 @@ def _estimate_topics(estimates: Sequence[Estimate], origin: GeoOrigin, base_s: f
         e, nn = est.east_m[keep], est.north_m[keep]
         sigma = None
         if est.cov_en_m2 is not None:
-            sigma = np.sqrt(np.abs(0.5 * (est.cov_en_m2[keep, 0, 0] + est.cov_en_m2[keep, 1, 1])))
+            with np.errstate(over="ignore", invalid="ignore"):
+                sigma = np.sqrt(np.abs(0.5 * (est.cov_en_m2[keep, 0, 0] + est.cov_en_m2[keep, 1, 1])))
         yaw = est.yaw_rad[keep] if est.yaw_rad is not None else None
         topics.append(_topic(f"{topic}/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, nn, sigma, origin)))
         topics.append(_topic(f"{topic}/pose", _POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, nn, yaw)))
@@ -394,8 +397,9 @@ def _estimate_topics(estimates: Sequence[Estimate], origin: GeoOrigin, base_s: f
 
 
 def _time_base_s(drive: Drive, estimates: Sequence[Estimate]) -> float:
-    starts = [drive.start_s] + [float(np.nanmin(e.t_s)) for e in estimates if len(e) and np.isfinite(e.t_s).any()]
-    return min(0.0, float(np.floor(min(starts))))
+    """0, or the whole second before the earliest (finite) time when it is negative."""
+    times = [drive.start_s] + [float(np.min(e.t_s[np.isfinite(e.t_s)])) for e in estimates if np.isfinite(e.t_s).any()]
+    return max(-1e10, min(0.0, float(np.floor(min(times)))))
 
 
 def write_drive(path: str | os.PathLike, drive: Drive, estimates: Iterable[Estimate] = (), origin: GeoOrigin | None = None) -> None:
@@ -606,7 +610,7 @@ def _estimate_from(channel: McapChannel, payloads: list[bytes], path: Path) -> E
         covs = [row.get("cov_en_m2") for row in rows]
         flat = [[np.nan] * 4 if c is None else c for c in covs]
         try:
-            cov = np.array(flat, dtype=np.float64)
+            cov = np.array(flat, dtype=np.float64) if flat else np.zeros((0, 4))
         except (TypeError, ValueError, OverflowError):
             cov = None
         if cov is None or cov.shape != (len(rows), 4):

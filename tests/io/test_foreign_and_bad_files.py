@@ -172,3 +172,65 @@ def test_unknown_tag_and_bad_metadata(tmp_path):
         write_foreign(path, wheel, metadata=meta)
         with pytest.raises((FileFormatError, DriveError), match=r"bad\.mcap: .*" + message):
             read_drive(path)
+
+
+# -- bad values in every channel (issue 8 corpus) ------------------------------
+
+MAPS = {
+    "tags": json.dumps({"tag_id": [1], "east_m": [0.0], "north_m": [3.0], "wall_side": [1], "group": [0]}),
+    "rsus": json.dumps({"rsu_id": [1], "east_m": [0.0], "north_m": [0.0]}),
+}
+
+
+def valid_row(kind: str, t: float) -> dict:
+    from graphpos.drive import CHANNEL_SPECS
+
+    row = {}
+    for spec in CHANNEL_SPECS[kind]:
+        row[spec.name] = 1.0 if spec.lo <= 1.0 <= spec.hi else spec.lo
+    row.update(t_s=t, arrival_s=t)
+    return row
+
+
+def channel_file(path: Path, kind: str, rows_: list[dict]) -> None:
+    write_foreign(path, {f"/{kind}": (f"graphpos.{kind}", "json", [json.dumps(r).encode() for r in rows_])}, metadata=MAPS)
+
+
+def required_columns():
+    from graphpos.drive import CHANNEL_SPECS
+
+    return [(kind, spec.name) for kind, specs in CHANNEL_SPECS.items() for spec in specs[1:] if spec.required]
+
+
+@pytest.mark.parametrize("kind, column", required_columns())
+@pytest.mark.parametrize("bad, reason", [(None, "is missing, null or NaN"), ("1e999", "is inf"), ("-1e999", "is -inf"), ("1e12", "outside the plausible range")])
+def test_bad_value_in_each_channel_names_channel_and_row(tmp_path, kind, column, bad, reason):
+    path = tmp_path / f"{kind}.mcap"
+    rows_ = [valid_row(kind, 0.0), valid_row(kind, 0.5)]
+    payloads = [json.dumps(r).encode() for r in rows_]
+    payloads[1] = payloads[1].replace(f'"{column}": {json.dumps(rows_[1][column])}'.encode(), f'"{column}": {json.dumps(bad) if bad is None else bad}'.encode())
+    assert payloads[1] != json.dumps(rows_[1]).encode()
+    write_foreign(path, {f"/{kind}": (f"graphpos.{kind}", "json", payloads)}, metadata=MAPS)
+    if column in ("tag_id", "rsu_id") and bad == "1e12":
+        reason = "is not in the"  # a whole number in range, but no such tag/RSU
+    with pytest.raises(DriveError, match=rf"{kind}\.mcap: channel '{kind}', row 1: .*{reason}"):
+        read_drive(path)
+
+
+@pytest.mark.parametrize("kind", ["imu", "wheel", "compass", "rfid", "rsu", "gnss", "truth"])
+def test_time_backwards_in_each_channel(tmp_path, kind):
+    path = tmp_path / "back.mcap"
+    channel_file(path, kind, [valid_row(kind, 1.0), valid_row(kind, 2.0), valid_row(kind, 1.5)])
+    with pytest.raises(DriveError, match=rf"channel '{kind}', row 2: time goes backwards"):
+        read_drive(path)
+
+
+def test_duplicate_timestamps_one_second_and_empty_channels_read(tmp_path):
+    path = tmp_path / "ok.mcap"
+    write_foreign(path, {
+        "/wheel": ("graphpos.wheel", "json", [json.dumps(valid_row("wheel", t)).encode() for t in (0.0, 0.5, 0.5, 1.0)]),
+        "/compass": ("graphpos.compass", "json", []),
+    })
+    drive = read_drive(path)
+    assert drive.wheel.t_s.tolist() == [0.0, 0.5, 0.5, 1.0]
+    assert len(drive.compass) == 0 and drive.duration_s == 1.0
