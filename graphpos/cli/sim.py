@@ -16,6 +16,8 @@ def register(sub) -> None:
                        description="The simulated test set-ups (the papers' experiments and beyond), "
                                    "their motion patterns and default durations.")
     p.add_argument("--json", action="store_true", help="print a JSON list of {name, summary, patterns, default_pattern, default_duration_s}")
+    p.add_argument("--params", metavar="NAME",
+                   help="print a scenario's default parameters as TOML (every key a --config file may set)")
     p.set_defaults(func=_scenarios)
 
     p = sub.add_parser("simulate", help="simulate a drive into an MCAP file",
@@ -40,8 +42,14 @@ def register(sub) -> None:
 
 
 def _scenarios(args: argparse.Namespace) -> int:
-    from graphpos.sim import SCENARIOS
+    from graphpos.sim import SCENARIOS, default_params
+    from graphpos.sim.params import to_toml
 
+    if args.params is not None:
+        if args.params not in SCENARIOS:
+            raise ConfigError(f"unknown scenario '{args.params}' (known: {', '.join(SCENARIOS)})")
+        print(f"# graphpos simulate {args.params}: default parameters\n" + to_toml(default_params(args.params)), end="")
+        return 0
     rows = [s.to_dict() for s in SCENARIOS.values()]
     if args.json:
         print(json.dumps(rows, indent=1, ensure_ascii=False))

@@ -292,6 +292,30 @@ def check_params(params: dict[str, Any]) -> None:
             raise ConfigError("parameter 'tags.group_spacing_m' must be at least tags.group_length_m")
 
 
+def to_toml(params: dict[str, Any]) -> str:
+    """A parameter dict as TOML text that :func:`load_config` reads back equal
+    (values first, then one ``[section]`` per nested dict)."""
+
+    def value(v: Any) -> str:
+        if isinstance(v, str):
+            return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+        return repr(v)
+
+    lines: list[str] = []
+
+    def emit(table: dict[str, Any], prefix: str) -> None:
+        scalars = {k: v for k, v in table.items() if not isinstance(v, dict)}
+        if prefix and scalars:
+            lines.append(f"\n[{prefix}]")
+        lines.extend(f"{k} = {value(v)}" for k, v in scalars.items())
+        for k, v in table.items():
+            if isinstance(v, dict):
+                emit(v, f"{prefix}.{k}" if prefix else k)
+
+    emit(params, "")
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
 def load_config(path: str | Path) -> dict[str, Any]:
     """Read a TOML parameter file (the ``--config`` of ``graphpos simulate``).
 

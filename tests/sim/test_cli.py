@@ -85,6 +85,7 @@ simulate paper-straight -o {a_folder}
 simulate paper-straight -o {read_only}
 simulate
 scenarios --bogus
+scenarios --params nope
 """.strip().splitlines()
 
 

@@ -86,3 +86,15 @@ def test_load_config_missing_file(tmp_path):
         load_config(tmp_path / "absent.toml")
     with pytest.raises(FileFormatError):
         load_config(tmp_path)  # a folder
+
+
+@pytest.mark.parametrize("name", list(SCENARIOS))
+def test_default_params_dump_as_toml_and_read_back(name, tmp_path, capsys):
+    from graphpos.cli import main
+
+    assert main(["scenarios", "--params", name]) == 0
+    f = tmp_path / "defaults.toml"
+    f.write_text(capsys.readouterr().out)
+    assert load_config(f) == default_params(name)
+    # a dumped file is a valid --config: the same drive as the defaults
+    assert simulate(name, seed=1, duration_s=20, overrides=load_config(f)).imu == simulate(name, seed=1, duration_s=20).imu
