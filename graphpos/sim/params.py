@@ -320,7 +320,9 @@ def load_config(path: str | Path) -> dict[str, Any]:
     """Read a TOML parameter file (the ``--config`` of ``graphpos simulate``).
 
     Only the file's syntax is checked here; its keys are checked against a
-    scenario's parameters by :func:`graphpos.sim.simulate`.
+    scenario's parameters by :func:`graphpos.sim.simulate`. A ``[faults]``
+    table (fault kind -> parameters, see :mod:`graphpos.sim.faults`) is for
+    ``simulate(faults=...)``; ``graphpos simulate --config`` passes it there.
 
     Raises
     ------

@@ -112,6 +112,8 @@ def simulate(
         raise ConfigError(f"seed must be a non-negative whole number, got {seed!r}")
     seed = int(seed)
     latency = _check_latency(rfid_latency_s)
+    if overrides and "faults" in overrides:
+        raise ConfigError("'faults' is not a parameter: pass it as simulate(faults=...) (the CLI takes [faults] from --config)")
     params = apply_overrides(default_params(scenario), overrides)
     check_params(params)
 

@@ -45,6 +45,7 @@ def test_every_scenario_has_full_defaults():
          ["lane_change_length_m"]),
         ({"scenario": "paper-straight", "overrides": {"motion": {"speed_low_mps": 5.0}}}, ["speed_low_mps"]),
         ({"scenario": "paper-straight", "overrides": {"gnss": {"tail_dof": 1}}}, ["unknown parameter 'gnss'"]),
+        ({"scenario": "paper-straight", "overrides": {"faults": {"dead_tags": {}}}}, ["simulate(faults=...)"]),
         ({"scenario": "urban-rsu-gnss", "overrides": {"gnss": {"zones": {"street": {"tail_dof": 1.5}}}}}, ["tail_dof"]),
     ],
 )
