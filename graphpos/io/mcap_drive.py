@@ -1,9 +1,10 @@
 """Drives and estimates in MCAP files.
 
 One drive is one MCAP file (zstd chunks, message indexes, summary with
-statistics and chunk index). Every message is JSON (message encoding
-``json``, schema encoding ``jsonschema``), so Foxglove opens the file as it
-is and another tool can write a file :func:`read_drive` reads.
+statistics and chunk index; :mod:`graphpos.io.mcap_container` writes and
+walks the container). Every message is JSON (message encoding ``json``,
+schema encoding ``jsonschema``), so Foxglove opens the file as it is and
+another tool can write a file :func:`read_drive` reads.
 
 File layout
 -----------
@@ -18,6 +19,9 @@ topic                     schema                   one message per
                                                    (:data:`~graphpos.drive.CHANNEL_SPECS`)
 ``/estimates/<name>``     ``graphpos.estimate``    output epoch of an estimator
 ========================  =======================  ===============================
+
+An estimate's channel metadata holds the estimator's name, which optional
+fields it estimates, its nominal rate, wall time and diagnostics (JSON).
 
 A float is written with Python's shortest round-trip representation, so
 float64 values come back bit-exact; NaN is written as ``null`` and +-inf as
@@ -227,16 +231,16 @@ def _thin(t_s: np.ndarray, rate_hz: float) -> np.ndarray:
     return np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])
 
 
-def _location_fixes(t_ns: np.ndarray, east_m, north_m, sigma_m, origin: GeoOrigin) -> list[bytes]:
+def _location_fixes(t_ns: np.ndarray, east_m, north_m, var_m2: tuple[np.ndarray, np.ndarray] | None, origin: GeoOrigin) -> list[bytes]:
+    """LocationFix messages; ``var_m2`` = (east, north) variances where known."""
     lat, lon = enu_to_geodetic(east_m, north_m, origin)
     sec, nsec = _stamps(t_ns)
     n = t_ns.size
-    if sigma_m is None:
+    if var_m2 is None:
         cov = ["[0,0,0,0,0,0,0,0,0]"] * n
         cov_type = ["0"] * n
     else:
-        var = np.asarray(sigma_m, dtype=np.float64) ** 2
-        cov = [f"[{v!r},0,0,0,{v!r},0,0,0,0]" for v in var.tolist()]
+        cov = [f"[{e},0,0,0,{nn},0,0,0,0]" for e, nn in zip(_float_texts(var_m2[0]), _float_texts(var_m2[1]))]
         cov_type = ["2"] * n
     names = ("timestamp", "frame_id", "latitude", "longitude", "altitude", "position_covariance", "position_covariance_type")
     stamp = [f'{{"sec":{s},"nsec":{ns}}}' for s, ns in zip(sec, nsec)]
@@ -340,13 +344,14 @@ def _drive_topics(drive: Drive, origin: GeoOrigin, base_s: float) -> list[Topic]
     if drive.has("gnss"):
         g = drive.gnss
         t_ns = _time_ns(g.t_s, base_s)
-        topics.append(_topic("/gnss/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, g.east_m, g.north_m, g.sigma_m, origin)))
+        topics.append(_topic("/gnss/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, g.east_m, g.north_m, (g.sigma_m**2, g.sigma_m**2), origin)))
     if drive.has("rsu"):
         r = drive.rsu
         fix = np.isfinite(r.east_m) & np.isfinite(r.north_m)
         if fix.any():
             t_ns = _time_ns(r.t_s[fix], base_s)
-            data = _location_fixes(t_ns, r.east_m[fix], r.north_m[fix], r.sigma_m[fix], origin)
+            var = r.sigma_m[fix] ** 2
+            data = _location_fixes(t_ns, r.east_m[fix], r.north_m[fix], (var, var), origin)
             topics.append(_topic("/rsu/fix", _LOCATION_FIX_SCHEMA, t_ns, data))
     if len(drive.tags) or len(drive.rsus):
         topics.append(_topic("/map", _GEOJSON_SCHEMA, _time_ns(np.array([drive.start_s]), base_s), [_map_geojson(drive, origin)]))
@@ -386,12 +391,9 @@ def _estimate_topics(estimates: Sequence[Estimate], origin: GeoOrigin, base_s: f
         keep = _thin(est.t_s, VIEW_RATE_HZ)
         t_ns = t_ns[keep]
         e, nn = est.east_m[keep], est.north_m[keep]
-        sigma = None
-        if est.cov_en_m2 is not None:
-            with np.errstate(over="ignore", invalid="ignore"):
-                sigma = np.sqrt(np.abs(0.5 * (est.cov_en_m2[keep, 0, 0] + est.cov_en_m2[keep, 1, 1])))
+        var = (est.cov_en_m2[keep, 0, 0], est.cov_en_m2[keep, 1, 1]) if est.cov_en_m2 is not None else None
         yaw = est.yaw_rad[keep] if est.yaw_rad is not None else None
-        topics.append(_topic(f"{topic}/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, nn, sigma, origin)))
+        topics.append(_topic(f"{topic}/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, nn, var, origin)))
         topics.append(_topic(f"{topic}/pose", _POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, nn, yaw)))
     return topics
 

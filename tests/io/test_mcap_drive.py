@@ -98,6 +98,11 @@ def test_viewing_topics_use_foxglove_schemas(tmp_path, drive, estimate):
     poses = [json.loads(d) for topic, _, _, d in messages if topic == "/truth/pose"]
     q = poses[3]["pose"]["orientation"]
     assert 2 * np.arctan2(q["z"], q["w"]) == pytest.approx(truth.yaw_rad[30])
+    gnss = json.loads(next(d for topic, _, _, d in messages if topic == "/gnss/fix"))
+    assert gnss["position_covariance"][0] == gnss["position_covariance"][4] == drive.gnss.sigma_m[0] ** 2
+    assert gnss["position_covariance_type"] == 2
+    est_fix = json.loads(next(d for topic, _, _, d in messages if topic == "/estimates/fusion-ekf/fix"))
+    assert est_fix["position_covariance"][0] == estimate.cov_en_m2[0, 0, 0]
     geo = json.loads(json.loads(next(d for topic, _, _, d in messages if topic == "/map"))["geojson"])
     assert len(geo["features"]) == len(drive.tags) + len(drive.rsus)
     # every message is standard JSON (no NaN literals)
