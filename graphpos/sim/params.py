@@ -21,6 +21,11 @@ from typing import Any
 from graphpos.errors import ConfigError, FileFormatError
 from graphpos.sim.rss import ENVIRONMENTS
 
+#: Highest sensor rate accepted (a guard against drives too large to build).
+MAX_RATE_HZ = 1000.0
+#: Longest drive accepted, in seconds (a day).
+MAX_DURATION_S = 86400.0
+
 #: Sensor and motion parameters shared by every scenario.
 _COMMON: dict[str, Any] = {
     # song2016 §6.1 / song2014 §5.1: the RSS law of the tunnel environment.
@@ -264,7 +269,9 @@ def check_params(params: dict[str, Any]) -> None:
                 walk(value, f"{path}.")
             elif isinstance(value, str):
                 continue
-            elif key.endswith("_hz") or key.endswith("_mps") or key.endswith("_tau_s") or key.endswith("_radius_m"):
+            elif key.endswith("_hz") and not 0 < value <= MAX_RATE_HZ:
+                raise ConfigError(f"parameter '{path}' must be in (0, {MAX_RATE_HZ:g}] Hz, got {value}")
+            elif key.endswith("_mps") or key.endswith("_tau_s") or key.endswith("_radius_m"):
                 if value <= 0:
                     raise ConfigError(f"parameter '{path}' must be positive, got {value}")
             elif key.endswith("probability"):

@@ -12,7 +12,7 @@ from graphpos.errors import ConfigError
 from graphpos.sim import sensors
 from graphpos.sim.faults import apply_faults, check_faults
 from graphpos.sim.infrastructure import no_tags, place_rsus, place_tags
-from graphpos.sim.params import apply_overrides, check_params, default_params
+from graphpos.sim.params import MAX_DURATION_S, apply_overrides, check_params, default_params
 from graphpos.sim.rss import ENVIRONMENTS
 from graphpos.sim.scenarios import SCENARIOS, build_route, motion_plan
 from graphpos.sim.trajectory import Trajectory
@@ -125,6 +125,8 @@ def simulate(
         duration_s = round(traj.first_pass_time_s, 6)
     if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) or not math.isfinite(duration_s) or duration_s <= 0:
         raise ConfigError(f"duration must be a positive number of seconds, got {duration_s!r}")
+    if duration_s > MAX_DURATION_S:
+        raise ConfigError(f"duration {duration_s:g} s is longer than the {MAX_DURATION_S:g} s a drive may last")
     duration_s = float(duration_s)
     check_faults(faults, duration_s)
 

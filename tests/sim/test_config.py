@@ -37,6 +37,8 @@ def test_every_scenario_has_full_defaults():
         ({"scenario": "urban-rsu-gnss", "overrides": {"tags": {"spacing_m": 3}}}, ["unknown parameter 'tags'"]),
         ({"scenario": "paper-straight", "duration_s": -1}, ["duration"]),
         ({"scenario": "paper-straight", "duration_s": float("nan")}, ["duration"]),
+        ({"scenario": "paper-straight", "duration_s": 1e9}, ["duration", "longer"]),
+        ({"scenario": "paper-straight", "overrides": {"imu": {"rate_hz": 1e7}}}, ["imu.rate_hz", "Hz"]),
         ({"scenario": "paper-straight", "seed": -2}, ["seed"]),
         ({"scenario": "paper-straight", "seed": 1.5}, ["seed"]),
         ({"scenario": "paper-straight", "rfid_latency_s": -1}, ["latency"]),
