@@ -29,7 +29,9 @@ class PropagationRangeModel(RssRangeModel):
     rss_at_1m : float
         A, the RSS at 1 m.
     path_loss_exponent : float
-        n.
+        n, in RSS units: the law is fitted to the 0-255 readings, not to dBm,
+        so n is the physical exponent times the radio's RSS units per dB
+        (about 3 in :mod:`graphpos.sim.rss`: a free-space n of 2 fits as 6).
     """
 
     kind = "propagation"
