@@ -31,7 +31,7 @@ def test_every_scenario_has_full_defaults():
         ({"scenario": "paper-straight", "overrides": {"nonsense": 1}}, ["nonsense", "imu"]),
         ({"scenario": "paper-straight", "overrides": {"imu": 3}}, ["section"]),
         ({"scenario": "paper-straight", "overrides": {"imu": {"rate_hz": "fast"}}}, ["imu.rate_hz", "number"]),
-        ({"scenario": "paper-straight", "overrides": {"imu": {"rate_hz": 0}}}, ["imu.rate_hz", "positive"]),
+        ({"scenario": "paper-straight", "overrides": {"imu": {"rate_hz": 0}}}, ["imu.rate_hz", "(0, 1000]"]),
         ({"scenario": "paper-straight", "overrides": {"rfid": {"outlier_probability": 2}}}, ["[0, 1]"]),
         ({"scenario": "paper-straight", "overrides": {"rss_environment": "space"}}, ["rss_environment", "tunnel"]),
         ({"scenario": "urban-rsu-gnss", "overrides": {"tags": {"spacing_m": 3}}}, ["unknown parameter 'tags'"]),
