@@ -137,7 +137,7 @@ def _estimate_schema() -> dict[str, Any]:
             "yaw_rad": nullable,
             "cov_en_m2": {
                 "type": ["array", "null"],
-                "items": {"type": "number"},
+                "items": {"type": ["number", "null"]},
                 "minItems": 4,
                 "maxItems": 4,
                 "description": "east/north position covariance, row-major [ee, en, ne, nn]",

@@ -188,3 +188,21 @@ def test_mcap_library_reads_file_and_message_indexes_point_at_messages(tmp_path,
             entries += 1
     assert entries == len(messages)
     assert sum(len([m for m in breakup_chunk(c) if isinstance(m, Message)]) for c in chunks) == len(messages)
+
+
+def test_every_message_conforms_to_its_channel_schema(tmp_path, drive, estimate):
+    import jsonschema
+
+    path = tmp_path / "d.mcap"
+    write_drive(path, drive, estimates=[estimate])
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        validators = {}
+        for schema, channel, message in reader.iter_messages(log_time_order=False):
+            assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+            if schema.id not in validators:
+                spec = json.loads(schema.data)
+                jsonschema.Draft202012Validator.check_schema(spec)
+                validators[schema.id] = jsonschema.Draft202012Validator(spec)
+            validators[schema.id].validate(json.loads(message.data))
+    assert len(validators) == len({"imu", "wheel", "compass", "rfid", "rsu", "gnss", "truth"}) + 4  # + fix, pose, map, estimate
