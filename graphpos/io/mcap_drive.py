@@ -65,7 +65,7 @@ import json
 import json.scanner
 import os
 from pathlib import Path
-from typing import Any, Iterable, Sequence
+from typing import Any, Iterable, Iterator, Sequence
 
 import numpy as np
 from mcap.records import Channel as McapChannel
@@ -90,6 +90,7 @@ _ESTIMATE_SCHEMA = "graphpos.estimate"
 _ESTIMATE_FIELDS = ("t_s", "east_m", "north_m", "v_east_mps", "v_north_mps", "yaw_rad", "cov_en_m2")
 _OPTIONAL_ESTIMATE_FIELDS = ("v_east_mps", "v_north_mps", "yaw_rad", "cov_en_m2")
 _MAX_UINT64_NS = 1.8e19
+_DECODE_BATCH = 50_000
 
 
 def _schema_name(kind: str) -> str:
@@ -446,8 +447,9 @@ def write_drive(path: str | os.PathLike, drive: Drive, estimates: Iterable[Estim
 _SCAN_JSON = json.scanner.make_scanner(json.JSONDecoder())
 
 
-def _decode_messages(payloads: list[bytes], where: str) -> list[dict]:
-    """One JSON object per message payload (UTF-8 JSON text each)."""
+def _decode_messages(payloads: list[bytes], where: str, first: int) -> list[dict]:
+    """One JSON object per message payload (UTF-8 JSON text each); ``first``
+    is the index of the first payload in its topic (for error messages)."""
     # json's C scanner on each payload: 3x faster than json.loads, whose
     # Python-level checks dominate on small messages. Anything it does not
     # take whole (whitespace around the value, bad JSON) goes to json.loads,
@@ -455,7 +457,7 @@ def _decode_messages(payloads: list[bytes], where: str) -> list[dict]:
     scan = _SCAN_JSON
     rows = []
     append = rows.append
-    for i, payload in enumerate(payloads):
+    for i, payload in enumerate(payloads, start=first):
         try:
             text = payload.decode()
             row, end = scan(text, 0)
@@ -472,12 +474,19 @@ def _decode_messages(payloads: list[bytes], where: str) -> list[dict]:
     return rows
 
 
-def _column(rows: list[dict], name: str, where: str) -> np.ndarray:
+def _batches(payloads: list[bytes], where: str) -> Iterator[tuple[int, list[dict]]]:
+    """(index of the first message, decoded messages) in batches, so that
+    only one batch of Python dicts is alive at a time."""
+    for first in range(0, len(payloads), _DECODE_BATCH):
+        yield first, _decode_messages(payloads[first : first + _DECODE_BATCH], where, first)
+
+
+def _column(rows: list[dict], name: str, where: str, first: int) -> np.ndarray:
     values = [row.get(name) for row in rows]
     try:
         return np.array(values, dtype=np.float64).reshape(len(values))
     except (TypeError, ValueError, OverflowError):
-        for i, v in enumerate(values):
+        for i, v in enumerate(values, start=first):
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
                 raise FileFormatError(f"{where}, message {i}: field '{name}' is not a number ({v!r:.40})") from None
             try:
@@ -487,12 +496,39 @@ def _column(rows: list[dict], name: str, where: str) -> np.ndarray:
         raise
 
 
-def _decode_channel(kind: str, rows: list[dict], where: str) -> Channel:
+def _cov_column(rows: list[dict], where: str, first: int) -> np.ndarray:
+    flat = [[np.nan] * 4 if row.get("cov_en_m2") is None else row["cov_en_m2"] for row in rows]
+    try:
+        cov = np.array(flat, dtype=np.float64)
+    except (TypeError, ValueError, OverflowError):
+        cov = None
+    if cov is None or cov.shape != (len(rows), 4):
+        raise FileFormatError(f"{where}, messages {first}-{first + len(rows) - 1}: field 'cov_en_m2' must be null or 4 numbers")
+    return cov
+
+
+def _decode_columns(payloads: list[bytes], names: Sequence[str], where: str) -> tuple[dict[str, np.ndarray], set[str]]:
+    """Float64 columns of the named fields (NaN where a message lacks one),
+    and the names present in at least one message."""
+    parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
+    present: set[str] = set()
+    for first, rows in _batches(payloads, where):
+        for name in names:
+            if name not in present and any(name in row for row in rows):
+                present.add(name)
+            parts[name].append(_cov_column(rows, where, first) if name == "cov_en_m2" else _column(rows, name, where, first))
+    empty = {"cov_en_m2": np.zeros((0, 4))}
+    return {name: np.concatenate(parts[name]) if parts[name] else empty.get(name, np.zeros(0)) for name in names}, present
+
+
+def _decode_channel(kind: str, payloads: list[bytes], where: str) -> Channel:
+    specs = CHANNEL_SPECS[kind]
+    decoded, present = _decode_columns(payloads, [s.name for s in specs], where)
     columns = {}
-    for spec in CHANNEL_SPECS[kind]:
-        if not spec.required and rows and spec.name not in rows[0] and not any(spec.name in row for row in rows):
+    for spec in specs:
+        if not spec.required and spec.name not in present:
             continue  # a field no message has takes the channel's default (NaN; t_s for arrival_s)
-        arr = _column(rows, spec.name, where)
+        arr = decoded[spec.name]
         if spec.required:
             missing = np.isnan(arr)
             if missing.any():
@@ -546,9 +582,8 @@ def _drive_from(contents: McapContents, path: Path) -> Drive:
         if kind in channels:
             raise FileFormatError(f"{path}: two topics carry the '{kind}' channel (schema {schema_name})")
         where = f"{path}: topic {channel.topic}"
-        rows = _decode_messages(contents.payloads.get(channel.id, []), where)
         try:
-            channels[kind] = _decode_channel(kind, rows, where)
+            channels[kind] = _decode_channel(kind, contents.payloads.pop(channel.id, []), where)
         except DriveError as exc:
             raise exc.with_source(str(path)) from None
     try:
@@ -598,26 +633,14 @@ def read_drive(path: str | os.PathLike) -> Drive:
 def _estimate_from(channel: McapChannel, payloads: list[bytes], path: Path) -> Estimate:
     where = f"{path}: topic {channel.topic}"
     meta = channel.metadata
-    rows = _decode_messages(payloads, where)
     name = meta.get("estimator") or channel.topic.rsplit("/", 1)[-1]
     present = set(filter(None, meta.get("fields", ",".join(_OPTIONAL_ESTIMATE_FIELDS)).split(",")))
-    cols: dict[str, Any] = {}
-    for field in _ESTIMATE_FIELDS[:-1]:
-        arr = _column(rows, field, where)
-        if field in ("t_s", "east_m", "north_m") or field in present:
-            cols[field] = arr
-        else:
-            cols[field] = None
-    if "cov_en_m2" in present:
-        covs = [row.get("cov_en_m2") for row in rows]
-        flat = [[np.nan] * 4 if c is None else c for c in covs]
-        try:
-            cov = np.array(flat, dtype=np.float64) if flat else np.zeros((0, 4))
-        except (TypeError, ValueError, OverflowError):
-            cov = None
-        if cov is None or cov.shape != (len(rows), 4):
-            raise FileFormatError(f"{where}: field 'cov_en_m2' must be null or 4 numbers in every message")
-        cols["cov_en_m2"] = cov.reshape(-1, 2, 2)
+    decoded, _ = _decode_columns(payloads, _ESTIMATE_FIELDS, where)
+    cols: dict[str, Any] = {
+        field: decoded[field] if field in ("t_s", "east_m", "north_m") or field in present else None for field in _ESTIMATE_FIELDS
+    }
+    if cols["cov_en_m2"] is not None:
+        cols["cov_en_m2"] = cols["cov_en_m2"].reshape(-1, 2, 2)
     try:
         diagnostics = json.loads(meta.get("diagnostics", "{}"))
         rate_hz = float(meta.get("rate_hz", "nan"))
