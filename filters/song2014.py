@@ -39,7 +39,7 @@ from filters.core import imm, stekf
 from filters.core.stekf import FadingConfig, FadingMemory
 from filters.lms import Fix, LmsFederatedConfig, LmsFederatedPositioner
 from filters.models import kinematic as km
-from filters.models.angles import angle_residual, wrap_angle
+from filters.models.angles import wrap_angle
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
@@ -125,7 +125,7 @@ class _Epoch:
     """Sensor data gathered during one output interval."""
 
     def __init__(self) -> None:
-        self.imu_sum = np.zeros(3)
+        self.ax = self.ay = self.wz = 0.0
         self.imu_n = 0
         self.wheel_sum = 0.0
         self.wheel_n = 0
@@ -159,10 +159,10 @@ class Song2014Fusion(FilterEstimator):
         P = np.diag(np.square([cfg.init_position_sigma_m, cfg.init_position_sigma_m, cfg.init_speed_sigma_mps,
                                cfg.init_speed_sigma_mps, cfg.init_yaw_sigma_rad, cfg.init_yaw_rate_sigma_radps]))
         n = len(cfg.models)
-        self._states = [x.copy() for _ in range(n)]
-        self._covs = [P.copy() for _ in range(n)]
+        self._states = np.repeat(x[None], n, axis=0)  # (models, 6)
+        self._covs = np.repeat(P[None], n, axis=0)  # (models, 6, 6)
         self._t_state = t0_s
-        self._memories = [FadingMemory(4) for _ in range(n)]
+        self._memory = FadingMemory(4, n)
         self._mu = np.asarray(cfg.initial_probabilities if n > 1 else (1.0,), dtype=np.float64)
         self._markov = np.asarray(cfg.markov, dtype=np.float64) if n > 1 else np.ones((1, 1))
         self._mu_log: list[list[float]] = []
@@ -170,8 +170,11 @@ class Song2014Fusion(FilterEstimator):
         self.diagnostics["fixes_used"] = 0
 
     def _on_imu(self, t_s, accel_x, accel_y, yaw_rate):
-        self._epoch.imu_sum += (accel_x, accel_y, yaw_rate)
-        self._epoch.imu_n += 1
+        e = self._epoch
+        e.ax += accel_x
+        e.ay += accel_y
+        e.wz += yaw_rate
+        e.imu_n += 1
 
     def _on_wheel(self, t_s, speed_mps):
         self._epoch.wheel_sum += speed_mps
@@ -188,7 +191,7 @@ class Song2014Fusion(FilterEstimator):
     def _output(self, t_s: float) -> OutputRow:
         epoch, self._epoch = self._epoch, _Epoch()
         if epoch.imu_n:
-            self._last_input = epoch.imu_sum / epoch.imu_n
+            self._last_input = np.array([epoch.ax, epoch.ay, epoch.wz]) / epoch.imu_n
         if t_s > self._t_state:
             self._step(t_s, epoch)
         x, P = self._combined()
@@ -217,24 +220,26 @@ class Song2014Fusion(FilterEstimator):
             states, covs, predicted = imm.mix(self._states, self._covs, self._mu, self._markov, (km.PSI,))
         else:
             states, covs, predicted = self._states, self._covs, self._mu
-        new_states, new_covs, lls = [], [], []
-        for i, name in enumerate(cfg.models):
-            x_pred, A, Q = self._predict(name, states[i], T)
-            z_pred, H = km.position_speed_yaw_observation(x_pred, rows)
-            if rows.size:
-                s = stekf.step(x_pred, A, covs[i], Q, z, z_pred, H, R, rows, self._memories[i], cfg.fading, self._residual(rows))
-                x_new, P_new = s.x, s.P
-                lls.append(imm.log_likelihood(s.innovation, s.innovation_cov))
-                self._fading_log.append(s.fading)
-            else:
-                x_new, P_new = x_pred, A @ covs[i] @ A.T + Q
-                lls.append(0.0)
-            x_new[km.PSI] = wrap_angle(float(x_new[km.PSI]))
-            new_states.append(x_new)
-            new_covs.append(P_new)
+        preds = [self._predict(name, states[i], T) for i, name in enumerate(cfg.models)]
+        x_pred = np.array([p[0] for p in preds])
+        A = np.array([p[1] for p in preds])
+        Q = np.array([p[2] for p in preds])
+        if rows.size:
+            obs = [km.position_speed_yaw_observation(x, rows) for x in x_pred]
+            z_pred = np.array([o[0] for o in obs])
+            H = np.array([o[1] for o in obs])
+            s = stekf.step(x_pred, A, covs, Q, z, z_pred, H, R, rows, self._memory, cfg.fading,
+                           np.flatnonzero(rows == km.OBS_YAW))
+            new_states, new_covs = s.x, s.P
+            log_likelihoods = imm.log_likelihood(s.innovation, s.innovation_cov)
+            self._fading_log.extend(s.fading.tolist())
+        else:
+            new_states, new_covs = x_pred, A @ covs @ np.swapaxes(A, 1, 2) + Q
+            log_likelihoods = np.zeros(n)
+        new_states[:, km.PSI] = wrap_angle(new_states[:, km.PSI])
         self._states, self._covs = new_states, new_covs
         if n > 1:
-            self._mu = imm.update_probabilities(predicted, lls)
+            self._mu = imm.update_probabilities(predicted, log_likelihoods)
 
     def _predict(self, name: str, x: np.ndarray, T: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``f(x, u)``, ``A`` and the noise ``B Gamma B^T + Q`` of one model."""
@@ -274,17 +279,6 @@ class Song2014Fusion(FilterEstimator):
             R[3, 3] = cfg.compass_sigma_rad**2
         idx = np.array(rows, dtype=np.int64)
         return idx, np.array(z), R[np.ix_(idx, idx)]
-
-    @staticmethod
-    def _residual(rows: np.ndarray):
-        yaw = np.flatnonzero(rows == km.OBS_YAW)
-
-        def residual(z: np.ndarray, z_pred: np.ndarray) -> np.ndarray:
-            d = z - z_pred
-            d[yaw] = angle_residual(z[yaw], z_pred[yaw])
-            return d
-
-        return residual
 
     def _combined(self) -> tuple[np.ndarray, np.ndarray]:
         if len(self._states) == 1:

@@ -11,7 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
-from filters.models.angles import angle_residual, wrap_angle
+from filters.models.angles import wrap_angle
 
 
 def validate_markov(matrix: np.ndarray) -> np.ndarray:
@@ -23,20 +23,35 @@ def validate_markov(matrix: np.ndarray) -> np.ndarray:
 
 
 def _spread(x: np.ndarray, ref: np.ndarray, angle_states: Sequence[int]) -> np.ndarray:
+    """``x - ref`` with angle entries wrapped (broadcasting)."""
     d = x - ref
-    for i in angle_states:
-        d[..., i] = angle_residual(x[..., i], ref[..., i])
+    if angle_states:
+        d[..., angle_states] = wrap_angle(d[..., angle_states])
     return d
 
 
+def _weighted_moments(
+    X: np.ndarray, P: np.ndarray, weights: np.ndarray, angle_states: Sequence[int]
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each column ``i`` of ``weights`` (j, i): ``x_i = sum_j w_ji x_j`` and
+    ``P_i = sum_j w_ji (P_j + (x_j - x_i)(x_j - x_i)^T)``, angles on the circle."""
+    ref = X[0]
+    x = ref + weights.T @ _spread(X, ref, angle_states)  # (i, n)
+    if angle_states:
+        x[:, angle_states] = wrap_angle(x[:, angle_states])
+    d = _spread(X[:, None, :], x[None, :, :], angle_states)  # (j, i, n)
+    spread = np.einsum("ji,jia,jib->iab", weights, d, d)
+    return x, np.einsum("ji,jab->iab", weights, P) + spread
+
+
 def mix(
-    states: Sequence[np.ndarray],
-    covs: Sequence[np.ndarray],
+    states: np.ndarray,
+    covs: np.ndarray,
     probabilities: np.ndarray,
     markov: np.ndarray,
     angle_states: Sequence[int] = (),
-) -> tuple[list[np.ndarray], list[np.ndarray], np.ndarray]:
-    """Interaction, song2014 eq. (25)-(27).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Interaction, song2014 eq. (25)-(27), for stacked model states (k, n), (k, n, n).
 
     ``mu_i(k,k-1) = sum_j pi_ji mu_j``, ``mu_ji = pi_ji mu_j / mu_i(k,k-1)``,
     ``x0_i = sum_j mu_ji x_j``,
@@ -44,53 +59,34 @@ def mix(
 
     Returns
     -------
-    mixed states, mixed covariances, predicted model probabilities.
+    mixed states (k, n), mixed covariances (k, n, n), predicted model probabilities (k,).
     """
-    X = np.asarray(states)
     predicted = markov.T @ probabilities
     weights = markov * probabilities[:, None] / predicted[None, :]  # [j, i]
-    out_x, out_P = [], []
-    for i in range(len(states)):
-        ref = X[0]
-        x0 = ref + weights[:, i] @ _spread(X, ref, angle_states)
-        for a in angle_states:
-            x0[a] = wrap_angle(float(x0[a]))
-        P0 = np.zeros_like(covs[0])
-        for j in range(len(states)):
-            d = _spread(X[j], x0, angle_states)
-            P0 += weights[j, i] * (covs[j] + np.outer(d, d))
-        out_x.append(x0)
-        out_P.append(P0)
-    return out_x, out_P, predicted
+    x0, P0 = _weighted_moments(np.asarray(states), np.asarray(covs), weights, list(angle_states))
+    return x0, P0, predicted
 
 
-def log_likelihood(innovation: np.ndarray, innovation_cov: np.ndarray) -> float:
-    """Gaussian log-likelihood of an innovation, song2014 eq. (40)."""
-    if innovation.size == 0:
-        return 0.0
-    sign, logdet = np.linalg.slogdet(2.0 * np.pi * innovation_cov)
-    return float(-0.5 * innovation @ np.linalg.solve(innovation_cov, innovation) - 0.5 * logdet)
+def log_likelihood(innovation: np.ndarray, innovation_cov: np.ndarray) -> np.ndarray:
+    """Gaussian log-likelihoods of stacked innovations (k, r) with covariances
+    (k, r, r), song2014 eq. (40)."""
+    if innovation.shape[-1] == 0:
+        return np.zeros(innovation.shape[0])
+    _, logdet = np.linalg.slogdet(2.0 * np.pi * innovation_cov)
+    maha = np.einsum("ki,ki->k", innovation, np.linalg.solve(innovation_cov, innovation[..., None])[..., 0])
+    return -0.5 * maha - 0.5 * logdet
 
 
-def update_probabilities(predicted: np.ndarray, log_likelihoods: Sequence[float]) -> np.ndarray:
+def update_probabilities(predicted: np.ndarray, log_likelihoods: np.ndarray) -> np.ndarray:
     """Model probability update, song2014 eq. (41) (in logs, to avoid underflow)."""
-    ll = np.asarray(log_likelihoods, dtype=np.float64)
-    w = np.log(predicted) + ll - np.max(ll)
+    w = np.log(predicted) + np.asarray(log_likelihoods, dtype=np.float64)
     w = np.exp(w - np.max(w))
     return w / w.sum()
 
 
 def combine(
-    states: Sequence[np.ndarray], covs: Sequence[np.ndarray], probabilities: np.ndarray, angle_states: Sequence[int] = ()
+    states: np.ndarray, covs: np.ndarray, probabilities: np.ndarray, angle_states: Sequence[int] = ()
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Combination, song2014 eq. (42)-(43)."""
-    X = np.asarray(states)
-    ref = X[0]
-    x = ref + probabilities @ _spread(X, ref, angle_states)
-    for a in angle_states:
-        x[a] = wrap_angle(float(x[a]))
-    P = np.zeros_like(covs[0])
-    for mu, xi, Pi in zip(probabilities, X, covs):
-        d = _spread(xi, x, angle_states)
-        P += mu * (Pi + np.outer(d, d))
-    return x, P
+    """Combination, song2014 eq. (42)-(43), for stacked model states."""
+    x, P = _weighted_moments(np.asarray(states), np.asarray(covs), np.asarray(probabilities)[:, None], list(angle_states))
+    return x[0], P[0]

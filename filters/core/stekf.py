@@ -20,18 +20,20 @@ calculation, eq. 36-37, gives one ``lambda_0i`` per filter). ``Q`` here is
 everything added after ``A P A^T`` (input noise ``B Gamma B^T`` plus process
 noise), which the fading factor does not scale.
 
-With fading disabled (``lambda = 1``) a step is exactly
+With fading disabled (``lambda = 1``) a step is
 :func:`filters.core.ekf.predict` followed by :func:`filters.core.ekf.update`.
+:func:`step` works on a stack of filters (an IMM's model-matched STEKFs in
+one pass; a single filter is a stack of one).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 
-from filters.core import ekf
+from filters.models.angles import wrap_angle
 
 
 @dataclass(frozen=True)
@@ -54,62 +56,56 @@ class FadingConfig:
 
 
 class FadingMemory:
-    """The innovation second-moment estimate ``S(k)`` of one filter.
+    """The innovation second-moment estimates ``S(k)`` of ``k`` filters.
 
-    Kept over the full observation vector; an epoch that observes only some
-    rows updates only their block (rows seen for the first time start at
-    ``g g^T``, the ``k = 0`` case).
+    Kept over the full observation vector, one ``(m, m)`` block per filter;
+    an epoch that observes only some rows updates only their block (rows
+    seen for the first time start at ``g g^T``, the ``k = 0`` case).
     """
 
-    def __init__(self, obs_size: int):
-        self.S = np.zeros((obs_size, obs_size))
+    def __init__(self, obs_size: int, filters: int = 1):
+        self.S = np.zeros((filters, obs_size, obs_size))
         self.seen = np.zeros(obs_size, dtype=bool)
-
-    def copy(self) -> "FadingMemory":
-        out = FadingMemory(self.S.shape[0])
-        out.S, out.seen = self.S.copy(), self.seen.copy()
-        return out
+        self._blocks: dict[bytes, tuple] = {}
 
     def factor(
         self,
         rows: np.ndarray,
         g: np.ndarray,
-        H: np.ndarray,
-        A: np.ndarray,
+        HA: np.ndarray,
         P: np.ndarray,
-        Q: np.ndarray,
+        HQH: np.ndarray,
         R: np.ndarray,
         config: FadingConfig,
-    ) -> float:
-        """Update ``S`` with the innovation ``g`` of ``rows`` and return ``lambda``."""
-        block = np.ix_(rows, rows)
-        ggT = np.outer(g, g)
+    ) -> np.ndarray:
+        """Update ``S`` with the innovations ``g`` (k, r) of ``rows`` and
+        return ``lambda`` (k,); ``HA = H A`` (k, r, n), ``HQH = H Q H^T``."""
+        key = rows.tobytes()
+        block = self._blocks.get(key)
+        if block is None:
+            block = self._blocks[key] = np.ix_(np.arange(self.S.shape[0]), rows, rows)
+        ggT = g[:, :, None] * g[:, None, :]
         rho = config.forgetting_factor
-        if self.seen[rows].all():
-            S = (rho * self.S[block] + ggT) / (1.0 + rho)
-        else:
-            S = ggT
+        S = (rho * self.S[block] + ggT) / (1.0 + rho) if self.seen[rows].all() else ggT
         self.S[block] = S
         self.seen[rows] = True
-        HA = H @ A
-        N = S - H @ Q @ H.T - config.softening_factor * R
-        M = HA @ P @ HA.T
-        tr_m = np.trace(M)
-        if tr_m <= 0:
-            return 1.0
-        return max(1.0, float(np.trace(N) / tr_m))
+        tr_n = np.trace(S - HQH, axis1=1, axis2=2) - config.softening_factor * np.trace(R)
+        tr_m = np.einsum("kij,kjl,kil->k", HA, P, HA)  # tr(H A P A^T H^T)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = np.where(tr_m > 0, tr_n / tr_m, 1.0)
+        return np.maximum(lam, 1.0)
 
 
 class Step(NamedTuple):
-    """One STEKF step."""
+    """One STEKF step of ``k`` filters (leading axis)."""
 
     x: np.ndarray
     P: np.ndarray
-    #: Innovation ``g = z - h(x(k, k-1))`` and its covariance ``H P(k,k-1) H^T + R``
-    #: (the IMM likelihood, song2014 eq. 40).
+    #: Innovations ``g = z - h(x(k, k-1))`` and their covariances
+    #: ``H P(k,k-1) H^T + R`` (the IMM likelihood, song2014 eq. 40).
     innovation: np.ndarray
     innovation_cov: np.ndarray
-    fading: float
+    fading: np.ndarray
 
 
 def step(
@@ -124,27 +120,48 @@ def step(
     rows: np.ndarray,
     memory: FadingMemory,
     config: FadingConfig,
-    residual: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+    angle_rows: np.ndarray | None = None,
 ) -> Step:
-    """Predict with fading and update (song2014 eq. 28-39).
+    """Predict with fading and update (song2014 eq. 28-39), for ``k`` filters at once.
 
     Parameters
     ----------
-    x_pred : (n,)
-        ``f(x(k-1), u(k))``.
-    A : (n, n)
-        Process Jacobian. ``P`` is the covariance at ``k-1``; ``Q`` the noise
-        added after ``A P A^T``.
-    z, z_pred, H, R :
-        Observation rows present at this step (``R`` a vector: its diagonal).
+    x_pred : (k, n)
+        ``f(x(k-1), u(k))`` of each filter.
+    A, P, Q : (k, n, n)
+        Process Jacobians, covariances at ``k-1``, noise added after ``A P A^T``.
+    z : (r,)
+        The observation rows present at this step; ``z_pred`` (k, r) and
+        ``H`` (k, r, n) their predictions and Jacobians; ``R`` (r, r).
     rows : index array
         Which rows of the full observation vector they are (fading memory).
-    residual : callable, optional
-        ``residual(z, z_pred)`` (wrap yaw rows).
+    angle_rows : index array, optional
+        Positions in ``z`` of angles, whose innovations are wrapped.
+
+    Notes
+    -----
+    The update is the EKF's (``K = P H^T S^-1``, ``P = P - K S K^T``, as in
+    :func:`filters.core.ekf.update`), written over the stacked filters so an
+    IMM steps its model-matched filters in one pass; with fading disabled a
+    step equals :func:`filters.core.ekf.predict` + :func:`filters.core.ekf.update`
+    (``tests/filters/test_song2014.py``).
     """
-    R = np.diag(R) if np.ndim(R) == 1 else np.atleast_2d(R)
-    g = residual(z, z_pred) if residual is not None else z - z_pred
-    lam = memory.factor(rows, g, H, A, P, Q, R, config) if config.enabled else 1.0
-    _, P_pred = ekf.predict(x_pred, A, lam * P, Q)
-    upd = ekf.update(x_pred, P_pred, z, z_pred, H, R, residual)
-    return Step(upd.x, upd.P, g, H @ P_pred @ H.T + R, lam)
+    g = z[None, :] - z_pred
+    if angle_rows is not None and len(angle_rows):
+        g[:, angle_rows] = wrap_angle(g[:, angle_rows])
+    At = np.swapaxes(A, 1, 2)
+    APA = A @ P @ At
+    if config.enabled:
+        HA = H @ A
+        HQH = H @ Q @ np.swapaxes(H, 1, 2)
+        lam = memory.factor(rows, g, HA, P, HQH, R, config)
+    else:
+        lam = np.ones(x_pred.shape[0])
+    P_pred = lam[:, None, None] * APA + Q
+    Ht = np.swapaxes(H, 1, 2)
+    PHt = P_pred @ Ht
+    S = H @ PHt + R
+    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, 1, 2)), 1, 2)  # P H^T S^-1 (S symmetric)
+    x = x_pred + np.einsum("kij,kj->ki", K, g)
+    P_new = P_pred - K @ S @ np.swapaxes(K, 1, 2)
+    return Step(x, 0.5 * (P_new + np.swapaxes(P_new, 1, 2)), g, S, lam)

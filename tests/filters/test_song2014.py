@@ -111,33 +111,56 @@ def _random_problem(seed=0):
     return rng.normal(size=n), A, P, Q, rng.normal(size=m), H @ rng.normal(size=n), H, rng.uniform(0.1, 1, m)
 
 
+def _stacked(*arrays):
+    return [a[None] for a in arrays]
+
+
 def test_stekf_without_fading_is_the_ekf():
     x, A, P, Q, z, z_pred, H, R = _random_problem()
     rows = np.arange(4)
-    s = stekf.step(x, A, P, Q, z, z_pred, H, R, rows, stekf.FadingMemory(4), stekf.FadingConfig(enabled=False))
+    xs, As, Ps, Qs, zps, Hs = _stacked(x, A, P, Q, z_pred, H)
+    s = stekf.step(xs, As, Ps, Qs, z, zps, Hs, np.diag(R), rows, stekf.FadingMemory(4), stekf.FadingConfig(enabled=False))
     _, P_pred = ekf.predict(x, A, P, Q)
     ref = ekf.update(x, P_pred, z, z_pred, H, R)
-    np.testing.assert_allclose(s.x, ref.x, rtol=1e-12)
-    np.testing.assert_allclose(s.P, ref.P, rtol=1e-12)
-    assert s.fading == 1.0
+    np.testing.assert_allclose(s.x[0], ref.x, rtol=1e-9)
+    np.testing.assert_allclose(s.P[0], ref.P, rtol=1e-9, atol=1e-12)
+    assert s.fading[0] == 1.0
+
+
+def test_stacked_filters_step_independently():
+    a, b = _random_problem(2), _random_problem(3)
+    rows = np.arange(4)
+    cfg = stekf.FadingConfig()
+    z, R = a[4], np.diag(a[7])
+    both = stekf.step(*(np.stack([p, q]) for p, q in zip(a[:4], b[:4])), z, np.stack([a[5], b[5]]),
+                      np.stack([a[6], b[6]]), R, rows, stekf.FadingMemory(4, 2), cfg)
+    for k, prob in enumerate((a, b)):
+        x, A, P, Q, _, z_pred, H, _ = prob
+        one = stekf.step(*_stacked(x, A, P, Q), z, z_pred[None], H[None], R, rows, stekf.FadingMemory(4), cfg)
+        np.testing.assert_allclose(both.x[k], one.x[0], rtol=1e-12)
+        np.testing.assert_allclose(both.fading[k], one.fading[0], rtol=1e-12)
 
 
 def test_fading_factor_grows_with_the_innovation():
     x, A, P, Q, z, z_pred, H, R = _random_problem(1)
     rows = np.arange(4)
     cfg = stekf.FadingConfig()
-    small = stekf.step(x, A, P, Q, z_pred + 1e-3, z_pred, H, R, rows, stekf.FadingMemory(4), cfg)
-    large = stekf.step(x, A, P, Q, z_pred + 100.0, z_pred, H, R, rows, stekf.FadingMemory(4), cfg)
-    assert small.fading == 1.0
-    assert large.fading > 10.0
-    assert np.trace(large.P) > np.trace(small.P)
+    args = _stacked(x, A, P, Q)
+    small = stekf.step(*args, z_pred + 1e-3, z_pred[None], H[None], np.diag(R), rows, stekf.FadingMemory(4), cfg)
+    large = stekf.step(*args, z_pred + 100.0, z_pred[None], H[None], np.diag(R), rows, stekf.FadingMemory(4), cfg)
+    assert small.fading[0] == 1.0
+    assert large.fading[0] > 10.0
+    assert np.trace(large.P[0]) > np.trace(small.P[0])
 
 
 def test_imm_probabilities_follow_the_likelihoods():
     pi = imm.validate_markov(np.array([[0.9, 0.1], [0.1, 0.9]]))
     mu = np.array([0.5, 0.5])
-    _, _, predicted = imm.mix([np.zeros(2), np.ones(2)], [np.eye(2)] * 2, mu, pi)
-    ll = [imm.log_likelihood(np.array([3.0]), np.eye(1)), imm.log_likelihood(np.array([0.1]), np.eye(1))]
+    x0, P0, predicted = imm.mix(np.array([np.zeros(2), np.ones(2)]), np.array([np.eye(2)] * 2), mu, pi)
+    # mixing of eq. 26-27: weights pi_ji mu_j / mu_i
+    np.testing.assert_allclose(x0[0], [0.1, 0.1])
+    np.testing.assert_allclose(P0[0], np.eye(2) + 0.9 * 0.1 * np.ones((2, 2)))
+    ll = imm.log_likelihood(np.array([[3.0], [0.1]]), np.array([np.eye(1)] * 2))
     post = imm.update_probabilities(predicted, ll)
     assert post[1] > 0.9 and np.isclose(post.sum(), 1.0)
     with pytest.raises(ValueError):
