@@ -226,6 +226,7 @@ class McapContents:
         self.payloads: dict[int, list[bytes]] = {}
         self.metadata: dict[str, dict[str, str]] = {}
         self.library = ""
+        self.statistics: Statistics | None = None
 
     def _record(self, opcode: int, body: memoryview) -> None:
         if opcode == Opcode.SCHEMA:
@@ -239,6 +240,8 @@ class McapContents:
             self.metadata.setdefault(meta.name, meta.metadata)
         elif opcode == Opcode.HEADER:
             self.library = Header.read(ReadDataStream(BytesIO(body))).library
+        elif opcode == Opcode.STATISTICS:
+            self.statistics = Statistics.read(ReadDataStream(BytesIO(body)))
 
     def _walk(self, data: bytes | memoryview, in_chunk: bool) -> bool:
         """Walk the records in ``data``; True when a footer was reached."""
@@ -313,4 +316,14 @@ def read_mcap_contents(path: Path) -> McapContents:
     unknown = set(contents.payloads) - set(contents.channels)
     if unknown:
         raise FileFormatError(f"{path}: corrupt MCAP file: messages on channel id {min(unknown)}, which is never defined")
+    stats = contents.statistics
+    if stats is not None:  # a whole file has every message its summary counts
+        found = {cid: len(p) for cid, p in contents.payloads.items()}
+        for cid in sorted(set(found) | set(stats.channel_message_counts)):
+            if found.get(cid, 0) != stats.channel_message_counts.get(cid, 0):
+                topic = contents.channels[cid].topic if cid in contents.channels else f"channel id {cid}"
+                raise FileFormatError(f"{path}: corrupt MCAP file: {found.get(cid, 0)} messages on {topic}, "
+                                      f"but the summary counts {stats.channel_message_counts[cid] if cid in stats.channel_message_counts else 0}")
+        if sum(found.values()) != stats.message_count:
+            raise FileFormatError(f"{path}: corrupt MCAP file: {sum(found.values())} messages, but the summary counts {stats.message_count}")
     return contents

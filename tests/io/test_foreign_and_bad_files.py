@@ -234,3 +234,19 @@ def test_duplicate_timestamps_one_second_and_empty_channels_read(tmp_path):
     drive = read_drive(path)
     assert drive.wheel.t_s.tolist() == [0.0, 0.5, 0.5, 1.0]
     assert len(drive.compass) == 0 and drive.duration_s == 1.0
+
+
+def test_file_missing_a_chunk_is_not_read_as_whole(tmp_path, drive, monkeypatch):
+    import graphpos.io.mcap_container as container
+    from mcap.records import ChunkIndex
+    from mcap.stream_reader import StreamReader
+
+    monkeypatch.setattr(container, "CHUNK_SIZE", 4096)
+    path = tmp_path / "gap.mcap"
+    write_drive(path, drive)
+    with open(path, "rb") as f:
+        chunk = [r for r in StreamReader(f).records if isinstance(r, ChunkIndex)][2]
+    data = path.read_bytes()
+    path.write_bytes(data[: chunk.chunk_start_offset] + data[chunk.chunk_start_offset + chunk.chunk_length :])
+    with pytest.raises(FileFormatError, match=r"gap\.mcap: corrupt MCAP file: \d+ messages on /\w+, but the summary counts \d+"):
+        read_drive(path)
