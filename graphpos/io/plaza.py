@@ -13,7 +13,8 @@ Plaza1 (see ``tests/io/test_plaza.py``):
     Odometry increments from ``GT`` row k to row k+1, stamped with the time
     of row k+1. The heading changes are exactly the differences of ``GT``'s
     heading (the dataset's heading comes from the same gyro), so a yaw rate
-    made from them is a near-perfect gyro.
+    made from them is a near-perfect gyro. They are taken modulo 2pi into
+    [-pi, pi) (Plaza1's already are), as a change of a wrapped heading.
 ``DRp`` (N, 4)
     A dead-reckoned path from the data's authors. Its step lengths equal
     ``DR``'s distances but its step directions drift away from the heading
@@ -117,7 +118,8 @@ def _rates(dr: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarr
         row = int(np.argmax(~(dt > 0))) + 1
         raise FileFormatError(f"{path}: array 'DR' row {row}: time {t_end[row]!r} does not increase")
     dt = np.r_[dt[0], dt]
-    return t_end - dt / 2, dr[:, 1] / dt, dr[:, 2] / dt
+    turn = np.remainder(dr[:, 2] + np.pi, 2 * np.pi) - np.pi  # an increment of a wrapped heading
+    return t_end - dt / 2, dr[:, 1] / dt, turn / dt
 
 
 def _truth(gt: np.ndarray, path: Path) -> Channel:

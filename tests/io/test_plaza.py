@@ -76,6 +76,11 @@ def test_any_plaza_layout_file(tmp_path):
     assert np.allclose(drive.wheel.speed_mps, 1.0, rtol=1e-4)
     assert np.allclose(drive.imu.yaw_rate_radps, 1 / 20)
     assert np.allclose(drive.wheel.t_s, arrays["DR"][:, 0] - 0.1)
+    # a heading change written unwrapped (+2pi) is the same turn
+    dr = arrays["DR"].copy()
+    dr[5, 2] += 2 * np.pi
+    synthetic_plaza(path, DR=dr)
+    assert np.allclose(import_plaza(path).imu.yaw_rate_radps, 1 / 20)
     speed = np.hypot(drive.truth.v_east_mps, drive.truth.v_north_mps)
     assert np.allclose(speed[1:-1], 1.0, rtol=1e-3)
     # ranges as recorded (1.05 x), sorted by time; true range from GT
