@@ -204,6 +204,7 @@ def import_plaza(path: str | os.PathLike, origin: GeoOrigin = PLAZA_ORIGIN) -> D
             "file": path.name,
             "antenna_ids": sorted({float(a) for a in np.unique(td[:, 1]).tolist()}),
             "range_rows_reordered": int(np.count_nonzero(order != np.arange(order.size))),
+            "true_range_m": "distance from GT (linearly interpolated at the reading time) to the beacon; truth, not a sensor",
         }
         return Drive(name=path.stem, channels=channels, tags=tags, origin=origin, params=params)
     except DriveError as exc:
