@@ -7,8 +7,8 @@ Plaza1 (see ``tests/io/test_plaza.py``):
     Ground truth. The heading is measured from the x axis, counter-clockwise:
     the direction of motion ``atan2(dy, dx)`` matches it within about 0.016
     rad (median) wherever the robot moves. Taking x as east and y as north,
-    it is the project's yaw. It is stored wrapped to [0, 2pi); it is
-    unwrapped here.
+    it is the project's yaw. It is stored wrapped (Plaza1: within
+    [-pi/2, 3pi/2), with five 2pi jumps); it is unwrapped here.
 ``DR`` (N-1, 3) ``[t_s, distance_m, heading_change_rad]``
     Odometry increments from ``GT`` row k to row k+1, stamped with the time
     of row k+1. The heading changes are exactly the differences of ``GT``'s
