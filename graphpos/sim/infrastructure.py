@@ -37,17 +37,22 @@ _EPS = 1e-6
 def place_tags(route: Route, tags: dict[str, Any]) -> TagMap:
     """Tag map with the ``dense``, ``optimized`` and ``groups-<N>m`` layouts."""
     spacing, group_len = tags["spacing_m"], tags["group_length_m"]
-    s_list, side_list, offset_list = [], [], []
-    for t0, t1 in route.spans(zone="tunnel"):
-        offsets = np.arange(0.0, t1 - t0 + _EPS, spacing)
-        for off in offsets:
-            for side in (+1, -1):
-                s_list.append(t0 + off)
-                side_list.append(side)
-                offset_list.append((t0, t1, off))
-    n = len(s_list)
-    s = np.array(s_list)
-    side = np.array(side_list, dtype=np.int64)
+    spans = route.spans(zone="tunnel")
+    if not spans:
+        return no_tags()
+    s_parts, side_parts, span_parts, off_parts = [], [], [], []
+    for k, (t0, t1) in enumerate(spans):
+        offsets = np.repeat(np.arange(0.0, t1 - t0 + _EPS, spacing), 2)
+        s_parts.append(t0 + offsets)
+        off_parts.append(offsets)
+        side_parts.append(np.tile([1, -1], offsets.size // 2))
+        span_parts.append(np.full(offsets.size, k))
+    s = np.concatenate(s_parts)
+    offset = np.concatenate(off_parts)
+    side = np.concatenate(side_parts).astype(np.int64)
+    span = np.concatenate(span_parts)
+    lengths = np.array([t1 - t0 for t0, t1 in spans])
+    n = s.size
     east = np.empty(n)
     north = np.empty(n)
     for sd in (+1, -1):
@@ -56,17 +61,15 @@ def place_tags(route: Route, tags: dict[str, Any]) -> TagMap:
     ids = np.arange(1, n + 1, dtype=np.int64)
 
     def groups(every_m: float) -> np.ndarray:
-        """Group index per tag for groups every ``every_m`` (-1 outside)."""
-        out = np.full(n, -1, dtype=np.int64)
-        index = 0
-        for t0, t1 in route.spans(zone="tunnel"):
-            start = 0.0
-            while start + group_len <= t1 - t0 + _EPS:
-                members = [i for i, (a, _, off) in enumerate(offset_list) if a == t0 and start - _EPS <= off <= start + group_len + _EPS]
-                out[members] = index
-                index += 1
-                start += every_m
-        return out
+        """Group index per tag for groups of length ``group_len`` starting
+        every ``every_m`` from each tunnel's entry (-1 outside a group);
+        a group that would run past the tunnel's end is not placed."""
+        g = np.floor((offset + _EPS) / every_m)
+        start = g * every_m
+        member = (offset - start <= group_len + _EPS) & (start + group_len <= lengths[span] + _EPS)
+        per_span = np.maximum(np.floor((lengths - group_len + _EPS) / every_m) + 1, 0)
+        first = np.concatenate([[0], np.cumsum(per_span)])[:-1]
+        return np.where(member, first[span] + g, -1).astype(np.int64)
 
     optimized = groups(tags["group_spacing_m"])
     layouts = {"dense": ids, "optimized": ids[optimized >= 0]}

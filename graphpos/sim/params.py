@@ -256,8 +256,35 @@ def apply_overrides(params: dict[str, Any], overrides: dict[str, Any] | None, wh
     return out
 
 
+#: Plausible bounds (inclusive) of parameters by name; others must be >= 0
+#: (rates in (0, MAX_RATE_HZ], probabilities in [0, 1], time constants > 0).
+#: They keep every drive buildable in seconds and every truth value within
+#: the channel bounds of graphpos.drive.
+_BOUNDS: dict[str, tuple[float, float]] = {
+    "speed_mps": (0.1, 70.0),
+    "speed_low_mps": (0.1, 70.0),
+    "speed_high_mps": (0.1, 70.0),
+    "turnaround_speed_mps": (0.5, 20.0),
+    "turnaround_accel_mps2": (0.1, 10.0),
+    "turnaround_radius_m": (1.0, 100.0),
+    "lane_change_length_m": (1.0, 1000.0),
+    "width_m": (2.0, 100.0),
+    "lane_width_m": (1.0, 50.0),
+    "curve_radius_m": (5.0, 1e5),
+    "turn_radius_m": (5.0, 1e5),
+    "turn_angle_deg": (0.0, 180.0),
+    "spacing_m": (1.0, 1000.0),
+    "group_spacing_m": (1.0, 1e4),
+    "disturbances_per_km": (0.0, 100.0),
+    "count": (0, 1000),
+}
+
+#: Longest route accepted (the world's longest road tunnel is 24.5 km).
+MAX_ROUTE_M = 50_000.0
+
+
 def check_params(params: dict[str, Any]) -> None:
-    """Reject impossible values with a message naming the parameter."""
+    """Reject impossible or unbuildable values with a message naming the parameter."""
     env = params["rss_environment"]
     if env not in ENVIRONMENTS:
         raise ConfigError(f"unknown rss_environment '{env}' (known: {', '.join(ENVIRONMENTS)})")
@@ -269,9 +296,14 @@ def check_params(params: dict[str, Any]) -> None:
                 walk(value, f"{path}.")
             elif isinstance(value, str):
                 continue
-            elif key.endswith("_hz") and not 0 < value <= MAX_RATE_HZ:
-                raise ConfigError(f"parameter '{path}' must be in (0, {MAX_RATE_HZ:g}] Hz, got {value}")
-            elif key.endswith("_mps") or key.endswith("_tau_s") or key.endswith("_radius_m"):
+            elif key in _BOUNDS:
+                lo, hi = _BOUNDS[key]
+                if not lo <= value <= hi:
+                    raise ConfigError(f"parameter '{path}' must be in [{lo:g}, {hi:g}], got {value}")
+            elif key.endswith("_hz"):
+                if not 0 < value <= MAX_RATE_HZ:
+                    raise ConfigError(f"parameter '{path}' must be in (0, {MAX_RATE_HZ:g}] Hz, got {value}")
+            elif key.endswith("_tau_s"):
                 if value <= 0:
                     raise ConfigError(f"parameter '{path}' must be positive, got {value}")
             elif key.endswith("probability"):
@@ -282,8 +314,11 @@ def check_params(params: dict[str, Any]) -> None:
 
     walk(params, "")
     route, motion = params["route"], params["motion"]
-    if route["lane_width_m"] <= 0 or route["lane_width_m"] > route["width_m"] / 2:
-        raise ConfigError("parameter 'route.lane_width_m' must be positive and at most half of route.width_m")
+    length = sum(v for k, v in route.items() if k.endswith("_m") and k not in ("width_m", "lane_width_m") and "radius" not in k)
+    if length > MAX_ROUTE_M:
+        raise ConfigError(f"the route is {length:g} m long; at most {MAX_ROUTE_M:g} m are accepted")
+    if route["lane_width_m"] > route["width_m"] / 2:
+        raise ConfigError("parameter 'route.lane_width_m' must be at most half of route.width_m")
     if motion["speed_low_mps"] > motion["speed_high_mps"]:
         raise ConfigError("parameter 'motion.speed_low_mps' must not exceed motion.speed_high_mps")
     if motion["turnaround_radius_m"] < route["lane_width_m"]:
@@ -291,12 +326,8 @@ def check_params(params: dict[str, Any]) -> None:
     for name, zone in params.get("gnss", {}).get("zones", {}).items():
         if 0 < zone["tail_dof"] <= 2:
             raise ConfigError(f"parameter 'gnss.zones.{name}.tail_dof' must be 0 (Gaussian) or above 2 (finite variance)")
-    if "tags" in params:
-        tags = params["tags"]
-        if tags["spacing_m"] <= 0:
-            raise ConfigError("parameter 'tags.spacing_m' must be positive")
-        if tags["group_spacing_m"] < tags["group_length_m"]:
-            raise ConfigError("parameter 'tags.group_spacing_m' must be at least tags.group_length_m")
+    if "tags" in params and params["tags"]["group_spacing_m"] < params["tags"]["group_length_m"]:
+        raise ConfigError("parameter 'tags.group_spacing_m' must be at least tags.group_length_m")
 
 
 def to_toml(params: dict[str, Any]) -> str:
