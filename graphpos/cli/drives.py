@@ -30,7 +30,22 @@ def register(sub) -> None:
                                        "graphpos/io/plaza.py.")
     p.add_argument("file", type=Path, metavar="FILE.mat", help="the Plaza .mat file")
     p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    p.add_argument("--origin", type=_origin, default=None, metavar="LAT,LON[,ALT]",
+                   help="geodetic origin of the dataset's x/y frame in degrees (and metres), for map views "
+                        "(default: the CMU campus, approximately)")
     p.set_defaults(func=_import_plaza)
+
+
+def _origin(text: str):
+    from graphpos.drive import GeoOrigin
+
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) not in (2, 3) or not all(np.isfinite(values)) or abs(values[0]) > 90 or abs(values[1]) > 180:
+        raise argparse.ArgumentTypeError(f"expected LAT,LON[,ALT] in degrees (and metres), got '{text}'")
+    return GeoOrigin(*values)
 
 
 def _rate_hz(t_s: np.ndarray) -> float | None:
@@ -102,7 +117,7 @@ def _import_plaza(args: argparse.Namespace) -> int:
     from graphpos.io import write_drive
     from graphpos.io.plaza import import_plaza
 
-    drive = import_plaza(args.file)
+    drive = import_plaza(args.file) if args.origin is None else import_plaza(args.file, origin=args.origin)
     write_drive(args.output, drive)
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
     print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} beacons ({counts})")

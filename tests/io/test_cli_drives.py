@@ -68,6 +68,10 @@ def test_import_plaza_then_info(tmp_path, capsys):
     assert set(info["channels"]) == {"imu", "wheel", "rfid", "truth"}
     assert info["channels"]["wheel"]["rate_hz"] == pytest.approx(5.0)
     assert info["tags"] == {"count": 3, "layouts": {"dense": 3}}
+    assert info["origin"]["lat_deg"] == pytest.approx(40.4435)
+    status, _, _ = run(capsys, "import", "plaza", mat, "-o", out_path, "--origin", "51.5,-0.12,10")
+    assert status == 0
+    assert json.loads(run(capsys, "info", out_path, "--json")[1])["origin"] == {"lat_deg": 51.5, "lon_deg": -0.12, "alt_m": 10.0}
 
 
 @pytest.mark.parametrize("case", ["missing", "empty", "random", "truncated", "foreign", "invalid", "folder"])
@@ -124,7 +128,9 @@ def test_import_plaza_bad_input(tmp_path, capsys, case):
 
 
 def test_bad_options(capsys):
-    for argv in (["info"], ["import"], ["import", "plaza", "x.mat"], ["import", "csv", "x"]):
+    for argv in (["info"], ["import"], ["import", "plaza", "x.mat"], ["import", "csv", "x"],
+                 ["import", "plaza", "x.mat", "-o", "y.mcap", "--origin", "north"],
+                 ["import", "plaza", "x.mat", "-o", "y.mcap", "--origin", "95,0"]):
         with pytest.raises(SystemExit) as exc:
             main(argv)
         assert exc.value.code == 2
