@@ -101,3 +101,40 @@ def test_default_params_dump_as_toml_and_read_back(name, tmp_path, capsys):
     assert load_config(f) == default_params(name)
     # a dumped file is a valid --config: the same drive as the defaults
     assert simulate(name, seed=1, duration_s=20, overrides=load_config(f)).imu == simulate(name, seed=1, duration_s=20).imu
+
+
+def _leaves(d, path=()):
+    for k, v in d.items():
+        if isinstance(v, dict):
+            yield from _leaves(v, path + (k,))
+        elif not isinstance(v, str):
+            yield path + (k,), v
+
+
+def _nested(path, value):
+    for k in reversed(path):
+        value = {k: value}
+    return value
+
+
+def _try_extremes(name, values):
+    from graphpos.errors import GraphposError
+
+    for path, default in _leaves(default_params(name)):
+        for x in values:
+            x = int(x) if isinstance(default, int) else x
+            try:
+                simulate(name, seed=0, duration_s=20, overrides=_nested(path, x))
+            except GraphposError:
+                pass  # refused with a clear message: fine; anything else fails the test
+
+
+def test_extreme_values_build_or_are_refused():
+    """Every parameter at 0 and 1e6: a drive or a clear error, never a crash."""
+    _try_extremes("paper-comprehensive", (0, 1e6))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", list(SCENARIOS))
+def test_extreme_values_every_scenario(name):
+    _try_extremes(name, (0, 1e-9, 0.5, 1e6))
