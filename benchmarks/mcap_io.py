@@ -4,8 +4,8 @@ Simulates a drive with ``graphpos.sim.simulate`` (scenario ``long-tunnel``
 by default) or, with ``--synthetic`` or while the simulator cannot make
 one, builds a drive with the same channel rates (imu, wheel and truth at
 100 Hz, compass 10 Hz, rfid 1-5 readings per second) from seeded noise.
-Prints message count, write and read seconds and file size, and checks the
-read drive equals the written one.
+Prints message count, write and read seconds, file size and the process's
+peak memory, and checks the read drive equals the written one.
 
     python benchmarks/mcap_io.py [--duration 3600] [--scenario long-tunnel] [--synthetic]
 """
@@ -13,6 +13,7 @@ read drive equals the written one.
 from __future__ import annotations
 
 import argparse
+import resource
 import tempfile
 import time
 from pathlib import Path
@@ -111,6 +112,7 @@ def main() -> None:
     same = all(back.channels[k] == ch for k, ch in drive.channels.items()) and back.tags == drive.tags
     print(f"messages: {stats.message_count} ({stats.chunk_count} chunks)")
     print(f"write: {write_s:.1f} s   read: {read_s:.1f} s   file: {size_mb:.1f} MB   lossless: {same}")
+    print(f"peak memory of the process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3:.0f} MB")
 
 
 if __name__ == "__main__":

@@ -90,7 +90,7 @@ _ESTIMATE_SCHEMA = "graphpos.estimate"
 _ESTIMATE_FIELDS = ("t_s", "east_m", "north_m", "v_east_mps", "v_north_mps", "yaw_rad", "cov_en_m2")
 _OPTIONAL_ESTIMATE_FIELDS = ("v_east_mps", "v_north_mps", "yaw_rad", "cov_en_m2")
 _MAX_UINT64_NS = 1.8e19
-_DECODE_BATCH = 50_000
+_BATCH_ROWS = 50_000  # rows encoded or decoded at a time (bounds the per-value Python objects alive)
 
 
 def _schema_name(kind: str) -> str:
@@ -329,12 +329,23 @@ def _topic(name: str, schema: dict[str, Any], log_ns: np.ndarray, payloads: list
     return Topic(name, schema["title"], json.dumps(schema).encode(), log_ns, payloads, metadata or {})
 
 
+def _encode_channel(ch: Channel) -> list[bytes]:
+    """One JSON message per row, encoded in batches (the per-value texts
+    of a whole hour-long channel would take hundreds of MB)."""
+    names = [spec.name for spec in ch.specs]
+    payloads: list[bytes] = []
+    for first in range(0, len(ch), _BATCH_ROWS):
+        rows = slice(first, first + _BATCH_ROWS)
+        texts = [(_int_texts if spec.integer else _float_texts)(ch[spec.name][rows]) for spec in ch.specs]
+        payloads += _encode_rows(names, texts)
+    return payloads
+
+
 def _drive_topics(drive: Drive, origin: GeoOrigin, base_s: float) -> list[Topic]:
     topics = []
     for kind, ch in drive.channels.items():
-        texts = [(_int_texts if spec.integer else _float_texts)(ch[spec.name]) for spec in ch.specs]
         t_ns = _time_ns(ch.t_s, base_s)
-        topics.append(_topic(f"/{kind}", _channel_schema(kind), t_ns, _encode_rows([s.name for s in ch.specs], texts)))
+        topics.append(_topic(f"/{kind}", _channel_schema(kind), t_ns, _encode_channel(ch)))
     if drive.has("truth"):
         truth = drive.truth
         keep = _thin(truth.t_s, VIEW_RATE_HZ)
@@ -477,8 +488,8 @@ def _decode_messages(payloads: list[bytes], where: str, first: int) -> list[dict
 def _batches(payloads: list[bytes], where: str) -> Iterator[tuple[int, list[dict]]]:
     """(index of the first message, decoded messages) in batches, so that
     only one batch of Python dicts is alive at a time."""
-    for first in range(0, len(payloads), _DECODE_BATCH):
-        yield first, _decode_messages(payloads[first : first + _DECODE_BATCH], where, first)
+    for first in range(0, len(payloads), _BATCH_ROWS):
+        yield first, _decode_messages(payloads[first : first + _BATCH_ROWS], where, first)
 
 
 def _column(rows: list[dict], name: str, where: str, first: int) -> np.ndarray:
