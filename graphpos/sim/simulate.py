@@ -14,7 +14,7 @@ from graphpos.sim.faults import apply_faults, check_faults
 from graphpos.sim.infrastructure import no_tags, place_rsus, place_tags
 from graphpos.sim.params import MAX_DURATION_S, apply_overrides, check_params, default_params
 from graphpos.sim.rss import ENVIRONMENTS
-from graphpos.sim.scenarios import SCENARIOS, build_route, motion_plan
+from graphpos.sim.scenarios import SCENARIOS, trajectory
 from graphpos.sim.trajectory import Trajectory
 
 
@@ -117,10 +117,8 @@ def simulate(
     params = apply_overrides(default_params(scenario), overrides)
     check_params(params)
 
-    route = build_route(scenario, params["route"])
-    lanes, speeds = motion_plan(pattern, route, params["motion"])
-    m = params["motion"]
-    traj = Trajectory(route, lanes, speeds, m["turnaround_radius_m"], m["turnaround_speed_mps"], m["turnaround_accel_mps2"])
+    traj = trajectory(scenario, pattern, params)
+    route = traj.route
     if duration_s is None:
         duration_s = round(traj.first_pass_time_s, 6)
     if isinstance(duration_s, bool) or not isinstance(duration_s, (int, float)) or not math.isfinite(duration_s) or duration_s <= 0:
