@@ -26,6 +26,7 @@ from itertools import chain
 from pathlib import Path
 from typing import BinaryIO
 
+import lz4.frame
 import numpy as np
 import zstandard
 from mcap.data_stream import ReadDataStream, RecordBuilder
@@ -284,9 +285,7 @@ def _chunk_data(body: memoryview) -> bytes:
         data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
     elif chunk.compression == "":
         data = chunk.data
-    elif chunk.compression == "lz4":
-        import lz4.frame
-
+    elif chunk.compression == "lz4":  # other writers' choice; lz4 comes with mcap
         data = lz4.frame.decompress(chunk.data)
     else:
         raise _Corrupt(f"unsupported chunk compression {chunk.compression!r}")
