@@ -67,7 +67,7 @@ def _frame_on_truth(ax, drive: Drive, margin: float = 0.15) -> None:
     if not e.size:
         return
     span = max(np.ptp(e), np.ptp(n), 10.0)
-    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_aspect("equal", adjustable="box")
     ax.set_xlim(e.min() - margin * span, e.max() + margin * span)
     ax.set_ylim(n.min() - margin * span, n.max() + margin * span)
 
