@@ -67,10 +67,24 @@ class VehicleFilterConfig:
     accel_model_psd_m2ps3 : float
         Extra acceleration noise density for what eq. 16 leaves out
         (accelerometer bias, road grade, body roll). Ours.
+    yaw_model_psd_rad2ps : float
+        Extra yaw noise density for what the gyro's white noise leaves out
+        (its bias: the 5-state model has no bias state). Ours.
     no_accel_psd_m2ps3 : float
         Acceleration noise density of the no-accelerometer fallback. Ours.
     wheel_sigma_mps, compass_sigma_rad : float
-        Measurement 1-sigmas (the paper gives none; ours).
+        Measurement 1-sigmas (the paper gives none; ours). The wheel sigma
+        is per 100 Hz sample and inflated well above the encoder noise: it
+        also stands for the wheel's scale error, which a white-noise model
+        would otherwise average away at 100 Hz (NEES-tuned).
+    lateral_velocity_sigma_mps : float or None
+        With each wheel speed, a pseudo-measurement of zero sideways body
+        velocity with this 1-sigma (the non-holonomic constraint of a wheel
+        that does not slip). Not in song2016 (eq. 17 observes the forward
+        speed only, leaving the sideways velocity to the integration of a
+        biased lateral accelerometer, which drifts metres within seconds
+        between the optimised layout's tag groups); None turns it off for
+        the paper's literal observation.
     init_position_sigma_m, init_speed_sigma_mps, init_yaw_sigma_rad : float
         Initial 1-sigmas around the starting pose (DGPS before the tunnel).
     range_gate_probability : float
@@ -82,10 +96,12 @@ class VehicleFilterConfig:
     accel_sigma_mps2: float = 0.1
     yaw_rate_sigma_radps: float = 0.2 * _DEG
     imu_rate_hz: float = 100.0
-    accel_model_psd_m2ps3: float = 0.01
+    accel_model_psd_m2ps3: float = 0.003
+    yaw_model_psd_rad2ps: float = 1e-5
     no_accel_psd_m2ps3: float = 0.5
-    wheel_sigma_mps: float = 0.1
+    wheel_sigma_mps: float = 1.5
     compass_sigma_rad: float = 2.0 * _DEG
+    lateral_velocity_sigma_mps: float | None = 1.0
     init_position_sigma_m: float = 0.5
     init_speed_sigma_mps: float = 0.3
     init_yaw_sigma_rad: float = 3.0 * _DEG
@@ -105,11 +121,15 @@ class RfidEkfConfig:
     init_position_sigma_m : float
     range_gate_probability : float
         As in :class:`VehicleFilterConfig`.
+    update_iterations : int
+        Measurement-update iterations (:func:`filters.core.ekf.iterated_update`);
+        1 is eq. 13-15 as printed.
     """
 
-    speed_sigma_mps: float = 3.0
+    speed_sigma_mps: float = 2.0
     init_position_sigma_m: float = 0.5
     range_gate_probability: float = 0.999
+    update_iterations: int = 3
 
 
 @dataclass
@@ -139,14 +159,14 @@ class FukfConfig(VehicleFilterConfig):
         §5.4: four.
     ukf_alpha, ukf_beta, ukf_kappa : float
         Scaled unscented transform parameters (the paper prints none; alpha
-        0.5 keeps the sigma points within the tags' range, beta 2 is optimal
+        0.3 keeps the sigma points near the mean, beta 2 is optimal
         for Gaussians).
     """
 
     beta_few_tags: tuple[float, float] = (0.05, 0.95)
     beta_many_tags: tuple[float, float] = (0.8, 0.2)
     many_tags: int = 4
-    ukf_alpha: float = 0.5
+    ukf_alpha: float = 0.3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0
 
@@ -182,7 +202,7 @@ def _process_noise(cfg: VehicleFilterConfig, dt: float, accel_psd: float) -> np.
     acceleration density (isotropic, so independent of yaw); yaw
     ``q_w dt``.
     """
-    q_w = cfg.yaw_rate_sigma_radps**2 / cfg.imu_rate_hz
+    q_w = cfg.yaw_rate_sigma_radps**2 / cfg.imu_rate_hz + cfg.yaw_model_psd_rad2ps
     Q = np.zeros((5, 5))
     Q[0, 0] = Q[1, 1] = accel_psd * dt**3 / 3.0
     Q[0, 2] = Q[2, 0] = Q[1, 3] = Q[3, 1] = accel_psd * dt**2 / 2.0
@@ -227,6 +247,13 @@ class _InputHold:
         return vehicle.rotating_velocity_motion(x, float(self.u[2]), dt, jacobian)
 
 
+def _wheel_covariance(cfg: VehicleFilterConfig) -> np.ndarray:
+    """R of a wheel reading: its speed, and the zero-sideways pseudo-measurement if on."""
+    if cfg.lateral_velocity_sigma_mps is None:
+        return np.array([[cfg.wheel_sigma_mps**2]])
+    return np.diag([cfg.wheel_sigma_mps**2, cfg.lateral_velocity_sigma_mps**2])
+
+
 def _initial_covariance(cfg: VehicleFilterConfig) -> np.ndarray:
     return np.diag(
         [
@@ -264,7 +291,7 @@ class _VehicleEkf(FilterEstimator):
         self._x = _initial_state(drive, t0_s)
         self._P = _initial_covariance(self.config)
         self._hold = _InputHold(self.config)
-        self._R_wheel = np.array([[self.config.wheel_sigma_mps**2]])
+        self._R_wheel = _wheel_covariance(self.config)
         self._R_compass = np.array([[self.config.compass_sigma_rad**2]])
 
     def _predict_to(self, t_s: float) -> None:
@@ -279,8 +306,13 @@ class _VehicleEkf(FilterEstimator):
         self._hold.set(accel_x, accel_y, yaw_rate)
 
     def _on_wheel(self, t_s, speed_mps):
-        v, H = meas.wheel_speed(self._x)
-        self._x, self._P, _ = ekf.update(self._x, self._P, np.array([speed_mps]), np.array([v]), H, self._R_wheel)
+        if self._R_wheel.shape[0] == 1:
+            v, H = meas.wheel_speed(self._x)
+            z, v = np.array([speed_mps]), np.array([v])
+        else:
+            v, H = meas.body_velocity(self._x)
+            z = np.array([speed_mps, 0.0])
+        self._x, self._P, _ = ekf.update(self._x, self._P, z, v, H, self._R_wheel)
 
     def _on_compass(self, t_s, yaw_rad):
         yaw, H = meas.compass_yaw(self._x)
@@ -389,7 +421,10 @@ class _RfidEkfState:
         self.x, self.P = ekf.predict(x, F, self.P, vehicle.random_walk_noise(2, self.cfg.speed_sigma_mps, dt))
         r_pred, H, ok = _gated_range_rows(self.x, self.P, tags, ranges, sigmas, self.cfg.range_gate_probability)
         if ok.any():
-            self.x, self.P, _ = ekf.update(self.x, self.P, ranges[ok], r_pred[ok], H[ok], sigmas[ok] ** 2)
+            tags_ok = tags[ok]
+            self.x, self.P, _ = ekf.iterated_update(
+                self.x, self.P, ranges[ok], lambda x: meas.tag_range(x, tags_ok), sigmas[ok] ** 2, self.cfg.update_iterations
+            )
         return int(ok.sum()), int((~ok).sum())
 
 
@@ -513,7 +548,7 @@ class Fukf(FilterEstimator):
         self._x, self._P = x0, P0
         self._set_beta(cfg.beta_few_tags)
         self._reset()
-        self._R_wheel = np.array([cfg.wheel_sigma_mps**2])
+        self._R_wheel = np.diag(_wheel_covariance(cfg))
         self._R_compass = np.array([cfg.compass_sigma_rad**2])
         self.diagnostics["fusions"] = 0
 
@@ -544,7 +579,10 @@ class Fukf(FilterEstimator):
         self._hold.set(accel_x, accel_y, yaw_rate)
 
     def _on_wheel(self, t_s, speed_mps):
-        self._local[1].update(np.array([speed_mps]), lambda S: meas.wheel_speed(S, False)[0][:, None], self._R_wheel)
+        if self._R_wheel.size == 1:
+            self._local[1].update(np.array([speed_mps]), lambda S: meas.wheel_speed(S, False)[0][:, None], self._R_wheel)
+        else:
+            self._local[1].update(np.array([speed_mps, 0.0]), lambda S: meas.body_velocity(S, False)[0], self._R_wheel)
 
     def _on_compass(self, t_s, yaw_rad):
         self._local[1].update(
@@ -552,15 +590,21 @@ class Fukf(FilterEstimator):
         )
 
     def _on_scan(self, t_s, tags, ranges, sigmas):
-        _, ok = self._local[0].update(
-            ranges, lambda S: meas.tag_range(S, tags, False)[0], sigmas**2, gate_probability=self.config.range_gate_probability
-        )
-        n_used = int(ok.sum())
-        self.diagnostics["ranges_gated"] += int((~ok).sum())
-        self.diagnostics["ranges_used"] += n_used
-        self._fuse()
         cfg = self.config
-        self._set_beta(cfg.beta_many_tags if n_used >= cfg.many_tags else cfg.beta_few_tags)
+        # share the information by the beta rule for this scan's tag count
+        self._fuse()
+        self._set_beta(cfg.beta_many_tags if len(ranges) >= cfg.many_tags else cfg.beta_few_tags)
+        self._reset()
+        # gate against the fused estimate: the local filter's covariance is
+        # inflated by 1 / beta_1 by design and would let outliers through
+        _, _, ok = _gated_range_rows(self._x, self._P, tags, ranges, sigmas, cfg.range_gate_probability)
+        self.diagnostics["ranges_gated"] += int((~ok).sum())
+        self.diagnostics["ranges_used"] += int(ok.sum())
+        if ok.any():
+            tags_ok = tags[ok]
+            self._local[0].update(ranges[ok], lambda S: meas.tag_range(S, tags_ok, False)[0], sigmas[ok] ** 2)
+        self._fuse()
+        self._set_beta(cfg.beta_few_tags)
         self._reset()
 
     def _output(self, t_s):

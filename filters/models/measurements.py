@@ -73,6 +73,31 @@ def wheel_speed(x: np.ndarray, jacobian: bool = True):
     return v, H
 
 
+def body_velocity(x: np.ndarray, jacobian: bool = True):
+    """Velocity in the body frame: ``[forward, left]``.
+
+    ``forward = v_e cos psi + v_n sin psi`` is the wheel speed of eq. 17;
+    ``left = -v_e sin psi + v_n cos psi`` is zero for a wheel that does not
+    slip sideways (the non-holonomic constraint, used as a pseudo-measurement
+    with the wheel speed).
+
+    Returns
+    -------
+    v_body_mps : (2,) or (k, 2) array
+    H : (2, n) array or None
+    """
+    x = np.asarray(x, dtype=np.float64)
+    c, s = np.cos(x[..., YAW]), np.sin(x[..., YAW])
+    ve, vn = x[..., VE], x[..., VN]
+    v = np.stack([ve * c + vn * s, -ve * s + vn * c], axis=-1)
+    if not jacobian:
+        return v, None
+    H = np.zeros((2, x.shape[-1]))
+    H[0, VE], H[0, VN], H[0, YAW] = c, s, -ve * s + vn * c
+    H[1, VE], H[1, VN], H[1, YAW] = -s, c, -ve * c - vn * s
+    return v, H
+
+
 def compass_yaw(x: np.ndarray, jacobian: bool = True):
     """Compass yaw, song2016 eq. 17/20: ``psi``. Innovations must be wrapped
     (:func:`filters.models.angles.angle_residual`).
