@@ -4,7 +4,8 @@ Simulates a drive with ``graphpos.sim.simulate`` (scenario ``long-tunnel``
 by default) or, with ``--synthetic`` or while the simulator cannot make
 one, builds a drive with the same channel rates (imu, wheel and truth at
 100 Hz, compass 10 Hz, rfid 1-5 readings per second) from seeded noise.
-Prints message count, write and read seconds, file size and the process's
+Prints message count, write and read seconds (wall and CPU: the machine is
+shared), file size and the process's
 peak memory, and checks the read drive equals the written one.
 
     python benchmarks/mcap_io.py [--duration 3600] [--scenario long-tunnel] [--synthetic]
@@ -100,18 +101,19 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "drive.mcap"
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         write_drive(path, drive)
-        write_s = time.perf_counter() - t0
-        t0 = time.perf_counter()
+        write_s, write_cpu_s = time.perf_counter() - t0, time.process_time() - c0
+        t0, c0 = time.perf_counter(), time.process_time()
         back = read_drive(path)
-        read_s = time.perf_counter() - t0
+        read_s, read_cpu_s = time.perf_counter() - t0, time.process_time() - c0
         with open(path, "rb") as f:
             stats = make_reader(f).get_summary().statistics
         size_mb = path.stat().st_size / 1e6
     same = all(back.channels[k] == ch for k, ch in drive.channels.items()) and back.tags == drive.tags
     print(f"messages: {stats.message_count} ({stats.chunk_count} chunks)")
-    print(f"write: {write_s:.1f} s   read: {read_s:.1f} s   file: {size_mb:.1f} MB   lossless: {same}")
+    print(f"write: {write_s:.1f} s (CPU {write_cpu_s:.1f} s)   read: {read_s:.1f} s (CPU {read_cpu_s:.1f} s)   "
+          f"file: {size_mb:.1f} MB   lossless: {same}")
     print(f"peak memory of the process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3:.0f} MB")
 
 
