@@ -151,3 +151,18 @@ def test_urban_zones_isolation_and_single_subsystems():
             if np.isfinite(values[:, k]).all():
                 assert ours[k] < values[:, k].mean(), (name, zone)
     assert ours[0] <= 2.0 and ours[1] <= 2.0, ours
+
+
+def test_urban_gnss_jump_is_isolated_and_restored():
+    """A 20 m GNSS jump (simulator fault) in the open, where GNSS is the only
+    position source: isolated as inconsistent, restored after, error bounded."""
+    from eval.metrics import evaluate_estimate
+    from graphpos.sim import simulate
+
+    drive = simulate("urban-rsu-gnss", seed=1, faults={"gnss_jump": {"start_s": 20.0, "duration_s": 10.0}})
+    est = FederatedKf().run(drive)
+    spans = [s for s in est.diagnostics["subsystems"]["gnss"]["isolations"] if s[2] == "inconsistent"]
+    assert len(spans) == 1 and 20.0 <= spans[0][0] <= 24.0 and 30.0 <= spans[0][1] <= 35.0, spans
+    fault = evaluate_estimate(drive, est)["windows"]["fault:gnss_jump"]["position"]
+    unprotected = evaluate_estimate(drive, FederatedKf(Liu2016Config(consistency_probability=1.0)).run(drive))
+    assert fault["max_m"] < 3.0 < 10.0 < unprotected["windows"]["fault:gnss_jump"]["position"]["max_m"]
