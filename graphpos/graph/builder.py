@@ -27,6 +27,7 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, R
+from scipy.optimize import least_squares
 
 from graphpos.drive import Channel, Drive, Measurement
 from graphpos.graph.config import GraphConfig
@@ -35,9 +36,11 @@ from graphpos.graph.odometry import PlanarOdometry
 
 #: 1-sigma of the first keyframe's position prior once anchored by ranges
 #: or fixes: weak, only there to keep the system determinate.
-WEAK_POSITION_SIGMA_M = 100.0
+WEAK_POSITION_SIGMA_M = 30.0
 #: Yaw sigma at start-up when neither an initial pose nor a compass gives it.
 UNKNOWN_YAW_SIGMA_RAD = math.pi
+#: Ranges used together to anchor the start-up track, s.
+ANCHOR_WINDOW_S = 10.0
 
 
 @dataclass
@@ -85,6 +88,9 @@ class GraphBuilder:
     initial_pose : tuple (east_m, north_m, yaw_rad) or None
         A known start pose (prior with the config's sigmas); None: anchor on
         the first absolute reading.
+    release_window_s : float
+        Without history, how much of the held start-up track is released
+        to the smoother at anchoring.
     """
 
     def __init__(
@@ -98,6 +104,7 @@ class GraphBuilder:
         keep_history: bool = True,
         range_scale: float = 1.0,
         initial_pose: tuple[float, float, float] | None = None,
+        release_window_s: float = math.inf,
     ):
         self.config = config
         self.model = model
@@ -107,6 +114,7 @@ class GraphBuilder:
         self.keep_history = keep_history
         self.range_scale = range_scale
         self.initial_pose = initial_pose
+        self.release_window_s = release_window_s if not keep_history else math.inf
         self.period_s = 1.0 / config.keyframe_rate_hz
         self.tags = {int(i): (float(e), float(n), int(w)) for i, e, n, w in zip(drive.tags.tag_id, drive.tags.east_m, drive.tags.north_m, drive.tags.wall_side)}
         self.rsus = {int(i): (float(e), float(n)) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
@@ -134,6 +142,7 @@ class GraphBuilder:
         self.anchored = initial_pose is not None
         self._backlog: list[Increment] = []
         self._backlog_landmarks: dict[int, np.ndarray] = {}
+        self._pre_anchor_ranges: list[tuple[int, tuple[str, int], float]] = []
         self._first_yaw: float | None = None
         # history for batch solves / scale estimation
         self.fixed_factors = gtsam.NonlinearFactorGraph()
@@ -232,11 +241,13 @@ class GraphBuilder:
 
     # -- keyframes ------------------------------------------------------------
     def _initial_state(self) -> KeyframeState:
+        """Start pose (given, or origin + first compass yaw), moving at the first wheel speed."""
         if self.initial_pose is not None:
             e, n, yaw = self.initial_pose
-            return KeyframeState(float(e), float(n), float(yaw))
-        yaw = self._first_yaw if self._first_yaw is not None else 0.0
-        return KeyframeState(0.0, 0.0, yaw)
+        else:
+            e, n, yaw = 0.0, 0.0, (self._first_yaw if self._first_yaw is not None else 0.0)
+        v = self.odometry.speed_mps
+        return KeyframeState(float(e), float(n), float(yaw), v * math.cos(yaw), v * math.sin(yaw))
 
     def _close(self, k: int, arrival: float) -> Increment:
         t_k = self.keyframe_time(k)
@@ -352,30 +363,45 @@ class GraphBuilder:
 
     # -- start-up anchoring --------------------------------------------------
     def _anchor_offset(self, ready: list[tuple[int, tuple]]) -> tuple[float, float] | None:
-        """East/north shift that puts the dead-reckoned track on the first absolute reading."""
+        """East/north shift that puts the dead-reckoned track on the absolute readings so far.
+
+        A fix anchors at once. Ranges anchor once they fix the position in
+        two directions: readings of at least two landmarks within
+        :data:`ANCHOR_WINDOW_S`, each placed relative to the latest one's
+        keyframe by dead reckoning; the shift is their least-squares solution
+        (several starts around the first landmark, best kept). A single
+        range would leave the along-track shift to the weak prior alone —
+        numerically indeterminate on a long held-back track.
+        """
         fixes = [(k, e) for k, e in ready if e[0] == "fix"]
         if fixes:
             k, (_, e, n, _) = fixes[0]
             s = self.states[k]
             return e - s.east_m, n - s.north_m
-        ranges = [(k, e) for k, e in ready if e[0] == "range"]
-        if not ranges:
+        self._pre_anchor_ranges.extend((k, e[1], e[2] / self.range_scale) for k, e in ready if e[0] == "range")
+        if not self._pre_anchor_ranges:
             return None
-        k = ranges[0][0]
-        at_k = [e for kk, e in ranges if kk == k]
-        pts = np.array([self._landmark_position(e[1]) for e in at_k])
-        s = self.states[k]
-        if len(at_k) == 1:
-            _, which, reading, _ = at_k[0]
-            side = self.tags[which[1]][2] if which[0] == "tag" else 0
-            # a tag on the left wall (+1) is left of the vehicle: the vehicle is
-            # the range away to the tag's right, seen along the heading
-            direction = -side * np.array([-math.sin(s.yaw_rad), math.cos(s.yaw_rad)]) if side else np.array([math.cos(s.yaw_rad), math.sin(s.yaw_rad)])
-            guess = pts[0] + reading / self.range_scale * direction
-        else:
-            guess = pts.mean(axis=0)
-        self.diagnostics["anchor_keyframe"] = k
-        return float(guess[0] - s.east_m), float(guess[1] - s.north_m)
+        k_last = max(k for k, _, _ in self._pre_anchor_ranges)
+        recent = [(k, w, r) for k, w, r in self._pre_anchor_ranges if (k_last - k) * self.period_s <= ANCHOR_WINDOW_S]
+        if len({w for _, w, _ in recent}) < 2:
+            return None
+        dr = np.array([[self.states[k].east_m, self.states[k].north_m] for k, _, _ in recent])
+        marks = np.array([self._landmark_position(w) for _, w, _ in recent])
+        reading = np.array([r for _, _, r in recent])
+
+        def residual(offset: np.ndarray) -> np.ndarray:
+            return np.hypot(*(dr + offset - marks).T) - reading
+
+        best = None
+        for angle in np.linspace(0.0, 2 * np.pi, 8, endpoint=False):
+            start = marks[-1] + reading[-1] * np.array([math.cos(angle), math.sin(angle)]) - dr[-1]
+            fit = least_squares(residual, start, loss="soft_l1")
+            if best is None or fit.cost < best.cost:
+                best = fit
+        if np.linalg.cond(best.jac.T @ best.jac) > 1e6:
+            return None  # landmarks in line with the track so far: wait for more
+        self.diagnostics["anchor_keyframe"] = k_last
+        return float(best.x[0]), float(best.x[1])
 
     def _landmark_position(self, which: tuple[str, int]) -> tuple[float, float]:
         return self.tags[which[1]][:2] if which[0] == "tag" else self.rsus[which[1]]
@@ -386,16 +412,30 @@ class GraphBuilder:
             self.states[k] = self.states[k].shifted(de, dn)
 
     def _release(self, last: Increment | None) -> Increment:
-        """All held keyframes as one increment, shifted, with the weak start prior."""
+        """The held keyframes as one increment, shifted, with the weak start prior.
+
+        Without history (fixed-lag) only the keyframes within
+        ``release_window_s`` are released: older ones would be marginalised
+        at once, and marginalising a long, weakly anchored dead-reckoned
+        track is numerically indeterminate.
+        """
         merged = Increment(last.keyframe if last else self.last_keyframe, last.t_s if last else 0.0)
-        for inc in self._backlog:
-            merged.factors.push_back(inc.factors)
-            merged.timestamps.update(inc.timestamps)
+        window = [inc for inc in self._backlog if inc.t_s >= merged.t_s - self.release_window_s] or self._backlog[-1:]
+        allowed = set(self._backlog_landmarks)
+        for inc in window:
+            allowed.update(self.model.keyframe_keys(inc.keyframe))
             merged.released.append(inc.keyframe)
+        for inc in window:
+            for i in range(inc.factors.size()):
+                factor = inc.factors.at(i)
+                if all(key in allowed for key in factor.keys()):
+                    merged.factors.add(factor)
+            merged.timestamps.update({key: t for key, t in inc.timestamps.items() if key in allowed})
         for k in merged.released:
             self.model.insert_values(merged.values, k, self.states[k])
         for key, point in self._backlog_landmarks.items():
             merged.values.insert(key, point)
+            merged.timestamps.setdefault(key, merged.t_s)
         yaw_sigma = self.config.compass_sigma_rad * 3 if self._first_yaw is not None else UNKNOWN_YAW_SIGMA_RAD
         priors = self.model.prior_factors(merged.released[0], self.states[merged.released[0]], WEAK_POSITION_SIGMA_M, yaw_sigma)
         self._add(merged, priors)

@@ -95,8 +95,8 @@ class GraphConfig:
     imu_rate_hz: float = 100.0
     accel_bias_sigma_mps2: float = 0.1
     gyro_bias_sigma_radps: float = math.radians(0.5)
-    accel_bias_walk_mps2_per_sqrt_s: float = 1e-3
-    gyro_bias_walk_radps_per_sqrt_s: float = 1e-4
+    accel_bias_walk_mps2_per_sqrt_s: float = 1e-2
+    gyro_bias_walk_radps_per_sqrt_s: float = 1e-3
     wheel_speed_sigma_mps: float = 0.1
     wheel_rate_hz: float = 100.0
     lateral_slip_sigma_mps: float = 0.05

@@ -204,6 +204,7 @@ class GraphFixedLag(_GraphEstimator):
             "max_delay_s": self.config.max_delay_s,
             "landmark_lifetime_s": 0.5 * self.config.fixed_lag_s,
             "keep_history": False,
+            "release_window_s": self.config.fixed_lag_s - self.config.max_delay_s - 1.0 / self.config.keyframe_rate_hz,
         }
 
 

@@ -64,7 +64,7 @@ def _rot_en(yaw: float, cov_body_xy: np.ndarray) -> np.ndarray:
 
 
 #: Tight sigma of a known landmark (tag/RSU) position prior, m.
-LANDMARK_SIGMA_M = 1e-3
+LANDMARK_SIGMA_M = 1e-2
 
 
 class PlanarModel:
@@ -144,6 +144,8 @@ class InertialModel:
     FREE_SIGMA = 1e3
     #: Yaw sigma of the wheel-odometry factor: loose, the IMU factor carries the gyro.
     ODOMETRY_YAW_SIGMA_RAD = 0.1
+    #: Position integration variance density of the IMU preintegration, m^2/s.
+    INTEGRATION_VARIANCE_M2PS = 1e-4
 
     def __init__(self, config: GraphConfig):
         self.config = config
@@ -152,7 +154,11 @@ class InertialModel:
         gyro_density = config.gyro_sigma_radps / math.sqrt(config.imu_rate_hz)
         params.setAccelerometerCovariance(np.eye(3) * accel_density**2)
         params.setGyroscopeCovariance(np.eye(3) * gyro_density**2)
-        params.setIntegrationCovariance(np.eye(3) * 1e-8)
+        # Position integration noise (m^2/s): the planar IMU ignores road grade
+        # and body roll, a model error far larger than GTSAM's usual 1e-8. It
+        # also keeps the IMU factor's position block from being so stiff that
+        # a long tag gap makes iSAM2's Cholesky indeterminate.
+        params.setIntegrationCovariance(np.eye(3) * self.INTEGRATION_VARIANCE_M2PS)
         params.setBiasAccCovariance(np.eye(3) * config.accel_bias_walk_mps2_per_sqrt_s**2)
         params.setBiasOmegaCovariance(np.eye(3) * config.gyro_bias_walk_radps_per_sqrt_s**2)
         self.params = params

@@ -84,7 +84,7 @@ def synthetic_drive(
     rt = np.array(rt)
     arrival = rt.copy()
     if rfid_latency_s is not None:
-        arrival = rt + rng.uniform(*rfid_latency_s, rt.size)
+        arrival = rt + np.random.default_rng([seed, 1]).uniform(*rfid_latency_s, rt.size)  # own stream: same sensor noise
         order = np.argsort(rt, kind="stable")
         rt, arrival = rt[order], arrival[order]
     channels = {
