@@ -166,3 +166,24 @@ def test_urban_gnss_jump_is_isolated_and_restored():
     fault = evaluate_estimate(drive, est)["windows"]["fault:gnss_jump"]["position"]
     unprotected = evaluate_estimate(drive, FederatedKf(Liu2016Config(consistency_probability=1.0)).run(drive))
     assert fault["max_m"] < 3.0 < 10.0 < unprotected["windows"]["fault:gnss_jump"]["position"]["max_m"]
+
+
+def test_rsu_range_readings_are_used():
+    """An RSU radio that reports ranges (no fix): LF1 takes them as range rows."""
+    drive = make_drive(duration_s=60.0, seed=4)
+    tr = drive.truth
+    rsu_e = np.arange(-20.0, 400.0, 40.0)
+    rsu_n = rsu_e * math.tan(0.2) + 6.0
+    rng = np.random.default_rng(4)
+    t, ids, ranges = [], [], []
+    for k in np.arange(0, len(tr), 100):
+        if 20.0 <= tr.t_s[k] < 40.0:  # the tunnel third
+            d = np.hypot(rsu_e - tr.east_m[k], rsu_n - tr.north_m[k])
+            for j in np.argsort(d)[:2]:
+                t.append(tr.t_s[k]); ids.append(j); ranges.append(d[j] + rng.normal(0, 0.5))
+    rsu = Channel("rsu", {"t_s": t, "rsu_id": ids, "range_m": ranges, "sigma_m": np.full(len(t), 0.5)})
+    ranged = drive.replace(channels={**drive.channels, "rsu": rsu}, rsus=RsuMap(np.arange(rsu_e.size), rsu_e, rsu_n))
+    with_ranges = FederatedKf().run(ranged)
+    without = FederatedKf(Liu2016Config(subsystems=("gnss", "dr"))).run(ranged)
+    assert with_ranges.diagnostics["subsystems"]["rsu"]["tested"] == len(t)
+    assert drms2(errors(with_ranges, ranged, 25.0, 40.0)) < drms2(errors(without, ranged, 25.0, 40.0))
