@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from abc import ABC, abstractmethod
 from pathlib import Path
 from typing import Any, ClassVar
@@ -20,6 +19,7 @@ import numpy as np
 
 from graphpos.drive import Channel
 from graphpos.errors import ConfigError, FileFormatError
+from graphpos.io.files import atomic_output, read_input
 
 
 class RangeModel(ABC):
@@ -72,15 +72,9 @@ class RangeModel(ABC):
 
     def save(self, path: str | os.PathLike) -> None:
         """Write the model as JSON (atomically: temporary file, then rename)."""
-        path = Path(path)
         payload = json.dumps({"kind": self.kind, **self.to_dict()}, indent=1)
-        try:
-            fd, tmp = tempfile.mkstemp(dir=path.parent if str(path.parent) else ".", suffix=".tmp")
-            with os.fdopen(fd, "w") as fh:
-                fh.write(payload)
-            os.replace(tmp, path)
-        except OSError as exc:
-            raise FileFormatError(f"{path}: cannot write the range model ({exc.strerror or exc})") from None
+        with atomic_output(Path(path)) as stream:
+            stream.write(payload.encode())
 
 
 _KINDS: dict[str, type[RangeModel]] = {}
@@ -96,10 +90,8 @@ def load_range_model(path: str | os.PathLike) -> RangeModel:
     """Read a model saved by :meth:`RangeModel.save`; clear errors for bad files."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise FileFormatError(f"{path}: no such range-model file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        data = json.loads(read_input(path))
+    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise FileFormatError(f"{path}: not a range-model JSON file ({exc})") from None
     if not isinstance(data, dict) or data.get("kind") not in _KINDS:
         raise FileFormatError(f"{path}: unknown range-model kind {data.get('kind') if isinstance(data, dict) else None!r}")
