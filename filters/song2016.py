@@ -291,8 +291,8 @@ class _VehicleEkf(FilterEstimator):
         self._x = _initial_state(drive, t0_s)
         self._P = _initial_covariance(self.config)
         self._hold = _InputHold(self.config)
-        self._R_wheel = _wheel_covariance(self.config)
-        self._R_compass = np.array([[self.config.compass_sigma_rad**2]])
+        self._R_wheel = np.diag(_wheel_covariance(self.config))
+        self._R_compass = np.array([self.config.compass_sigma_rad**2])
 
     def _predict_to(self, t_s: float) -> None:
         dt = t_s - self._t
@@ -306,7 +306,7 @@ class _VehicleEkf(FilterEstimator):
         self._hold.set(accel_x, accel_y, yaw_rate)
 
     def _on_wheel(self, t_s, speed_mps):
-        if self._R_wheel.shape[0] == 1:
+        if self._R_wheel.size == 1:
             v, H = meas.wheel_speed(self._x)
             z, v = np.array([speed_mps]), np.array([v])
         else:

@@ -57,19 +57,27 @@ def update(
     Notes
     -----
     The covariance is updated as ``P - K S K^T`` (eq. 15 with
-    ``K = P H^T S^-1``, written so that it stays exactly symmetric). A
-    single row is done without a matrix inverse.
+    ``K = P H^T S^-1``, written so that it stays exactly symmetric). With a
+    diagonal R (given as a vector) the rows are applied one at a time with
+    the same linearisation (innovation ``nu_i - H_i (x_post - x)``), which
+    is algebraically the joint update and needs no matrix inverse.
     """
     nu = residual(z, z_pred) if residual is not None else z - z_pred
     nu = np.atleast_1d(nu)
+    if np.ndim(R) == 1 or nu.shape[0] == 1:
+        r = np.diag(R) if np.ndim(R) == 2 else np.ravel(R)
+        x_new, P_new, nis = x, P, 0.0
+        for i in range(nu.shape[0]):
+            h = H[i]
+            PHt = P_new @ h
+            s = float(h @ PHt) + float(r[i])
+            k = PHt / s
+            nu_i = float(nu[i]) if i == 0 else float(nu[i] - h @ (x_new - x))
+            x_new = x_new + k * nu_i
+            P_new = P_new - k[:, None] * PHt
+            nis += nu_i * nu_i / s
+        return Update(x_new, P_new, nis)
     PHt = P @ H.T
-    if nu.shape[0] == 1:
-        r = float(R[0, 0]) if np.ndim(R) == 2 else float(np.ravel(R)[0])
-        s = float(H[0] @ PHt[:, 0]) + r
-        k = PHt[:, 0] / s
-        n0 = float(nu[0])
-        return Update(x + k * n0, P - np.outer(k, PHt[:, 0]), n0 * n0 / s)
-    R = np.diag(R) if np.ndim(R) == 1 else np.atleast_2d(R)
     S = H @ PHt + R
     S_inv = np.linalg.inv(S)
     K = PHt @ S_inv

@@ -10,6 +10,8 @@ skipped with ``jacobian=False``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from filters.models.vehicle import PE, PN, VE, VN, YAW
@@ -87,9 +89,14 @@ def body_velocity(x: np.ndarray, jacobian: bool = True):
     H : (2, n) array or None
     """
     x = np.asarray(x, dtype=np.float64)
-    c, s = np.cos(x[..., YAW]), np.sin(x[..., YAW])
-    ve, vn = x[..., VE], x[..., VN]
-    v = np.stack([ve * c + vn * s, -ve * s + vn * c], axis=-1)
+    if x.ndim == 1:  # one state: plain floats (the EKFs' hot path)
+        yaw, ve, vn = float(x[YAW]), float(x[VE]), float(x[VN])
+        c, s = math.cos(yaw), math.sin(yaw)
+        v = np.array([ve * c + vn * s, -ve * s + vn * c])
+    else:
+        c, s = np.cos(x[..., YAW]), np.sin(x[..., YAW])
+        ve, vn = x[..., VE], x[..., VN]
+        v = np.stack([ve * c + vn * s, -ve * s + vn * c], axis=-1)
     if not jacobian:
         return v, None
     H = np.zeros((2, x.shape[-1]))
