@@ -17,7 +17,7 @@ import numpy as np
 from eval import plots
 from eval.evaluate import Outcome, add_failure_section, result_record
 from eval.execution import Job, SimSource, execute, load_drive, provenance
-from eval.reproduce import _cell, _figure
+from eval.reproduce import seeds_cell, window_stat
 from eval.report import Report, write_json
 from graphpos.errors import ConfigError
 
@@ -55,13 +55,13 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
         row = [lay, str(n_tags[lay])]
         for est in names:
             rs = [by[(lay, est, s)] for s in sources]
-            rms = [_figure(r, "in_tunnel", "rms_m") for r in rs]
+            rms = [window_stat(r, "in_tunnel", "rms_m") for r in rs]
             ok = [v for v in rms if np.isfinite(v)]
             if ok:
                 points.setdefault(est, []).append((n_tags[lay], float(np.mean(ok)), float(np.std(ok))))
-            row.append(_cell(rs, "in_tunnel", "rms_m"))
+            row.append(seeds_cell(rs, "in_tunnel", "rms_m"))
             record.append({"layout": lay, "n_tags": n_tags[lay], "estimator": est, "rms_in_tunnel_m": rms,
-                           "max_in_tunnel_m": [_figure(r, "in_tunnel", "max_m") for r in rs],
+                           "max_in_tunnel_m": [window_stat(r, "in_tunnel", "max_m") for r in rs],
                            "errors": [r.error for r in rs]})
         rows.append(row)
 

@@ -88,19 +88,20 @@ def first_seconds(drive: Drive, seconds: float) -> Drive:
                          windows=tuple(windows), params={**drive.params, "cut_after_s": seconds})
 
 
-def _figure(r: JobResult, window: str, stat: str) -> float:
+def window_stat(r: JobResult, window: str, stat: str) -> float:
+    """One position statistic of a run in a window (NaN when the run failed or lacks the window)."""
     if not r.ok:
         return math.nan
     w = r.metrics["windows"].get(window)
     return w["position"][stat] if w else math.nan
 
 
-def _cell(results: list[JobResult], window: str, stat: str) -> str:
+def seeds_cell(results: list[JobResult], window: str, stat: str) -> str:
     """Mean ± STD over seeds, or why there is no figure."""
     good = [r for r in results if r.ok]
     if not good:
         return cell_error(results[0]) if results else "–"
-    text = mean_spread([_figure(r, window, stat) for r in good])
+    text = mean_spread([window_stat(r, window, stat) for r in good])
     failed = len(results) - len(good)
     return text + (f" ({failed} of {len(results)} runs failed)" if failed else "")
 
@@ -123,18 +124,18 @@ def _experiment_table(exp: Experiment, res: dict[_RunKey, JobResult], sources: l
     for row in exp.all_rows():
         rs = [res[(s, row.estimator, row.layout)] for s in sources]
         pub = row.published or (math.nan, math.nan)
-        line = [row.label, row.layout or "–", fmt(pub[0]), fmt(pub[1]), _cell(rs, exp.window, "max_m"),
-                _cell(rs, exp.window, "rms_m")]
+        line = [row.label, row.layout or "–", fmt(pub[0]), fmt(pub[1]), seeds_cell(rs, exp.window, "max_m"),
+                seeds_cell(rs, exp.window, "rms_m")]
         if in_tunnel_col:
-            line.append(_cell(rs, "in_tunnel", "rms_m"))
+            line.append(seeds_cell(rs, "in_tunnel", "rms_m"))
         rate, velocity = _run_info(rs)
         wall = [r.metrics["wall_time_s"] for r in rs if r.ok]
         line += [rate, velocity, mean_spread(wall)]
         rows.append(line)
         records.append({
             "estimator": row.estimator, "label": row.label, "layout": row.layout, "published_max_rms_m": row.published,
-            "max_m": [_figure(r, exp.window, "max_m") for r in rs],
-            "rms_m": [_figure(r, exp.window, "rms_m") for r in rs],
+            "max_m": [window_stat(r, exp.window, "max_m") for r in rs],
+            "rms_m": [window_stat(r, exp.window, "rms_m") for r in rs],
             "errors": [r.error for r in rs],
         })
     return header, rows, records
@@ -156,8 +157,8 @@ def _zones_table(exp: Experiment, res: dict[_RunKey, JobResult], sources: list[S
     rows, records = [], []
     for row in exp.all_rows():
         rs = [res[(s, row.estimator, row.layout)] for s in sources]
-        rows.append([row.label] + [_cell(rs, z, "drms2_m") for z in zones] + [_cell(rs, WHOLE, "drms2_m")])
-        records.append({"estimator": row.estimator, "drms2_m": {z: [_figure(r, z, "drms2_m") for r in rs] for z in zones + [WHOLE]},
+        rows.append([row.label] + [seeds_cell(rs, z, "drms2_m") for z in zones] + [seeds_cell(rs, WHOLE, "drms2_m")])
+        records.append({"estimator": row.estimator, "drms2_m": {z: [window_stat(r, z, "drms2_m") for r in rs] for z in zones + [WHOLE]},
                         "errors": [r.error for r in rs]})
     return header, rows, records
 
@@ -319,8 +320,8 @@ def _degraded_section(report: Report, res: dict, degraded: dict[str, list[SimSou
         row = [name, layout]
         for label, srcs in degraded.items():
             rs = [res[(s, name, layout)] for s in srcs]
-            row.append(_cell(rs, "in_tunnel", "rms_m"))
-            record.append({"estimator": name, "variant": label, "rms_in_tunnel_m": [_figure(r, "in_tunnel", "rms_m") for r in rs]})
+            row.append(seeds_cell(rs, "in_tunnel", "rms_m"))
+            record.append({"estimator": name, "variant": label, "rms_in_tunnel_m": [window_stat(r, "in_tunnel", "rms_m") for r in rs]})
         rows.append(row)
     report.section("Late measurements and reader faults (paper-straight, RMS in the tunnel)").table(
         ["estimator", "layout", *degraded], rows).text(
