@@ -1,0 +1,77 @@
+"""`graphpos estimators` and `graphpos run`: outputs, and bad input -> one line, exit 2, no output."""
+
+import csv
+import json
+
+import pytest
+from song2016_drives import make_drive
+
+from graphpos.cli import main
+from graphpos.estimate import CSV_COLUMNS
+from graphpos.io import read_estimates, write_drive
+
+
+@pytest.fixture(scope="module")
+def drive_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("drive") / "d.mcap"
+    write_drive(path, make_drive(duration_s=15.0, seed=2))
+    return path
+
+
+def test_estimators_lists_song2016(capsys):
+    assert main(["estimators", "--json"]) == 0
+    rows = {r["name"]: r for r in json.loads(capsys.readouterr().out)}
+    for name in ("dr", "multilateration", "rfid-ekf", "fusion-ekf", "fukf", "two-level-ekf"):
+        assert rows[name]["summary"]
+    assert rows["fusion-ekf"]["required_channels"] == ["imu", "wheel", "rfid"]
+    assert rows["fusion-ekf"]["config"]["accel_sigma_mps2"] == 0.1
+    assert main(["estimators"]) == 0
+    assert "fukf" in capsys.readouterr().out
+
+
+def test_run_writes_every_output(drive_file, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(drive_file), "-e", "fusion-ekf", "-e", "rfid-ekf", "--layout", "optimized", "--out-dir", str(out)]) == 0
+    assert {p.name for p in out.iterdir()} == {"fusion-ekf.csv", "rfid-ekf.csv", "truth.csv", "run.json", "estimates.mcap"}
+    for name in ("fusion-ekf", "rfid-ekf", "truth"):
+        with open(out / f"{name}.csv") as fh:
+            rows = list(csv.reader(fh))
+        assert tuple(rows[0]) == CSV_COLUMNS and len(rows) > 10
+        if name == "rfid-ekf":  # no velocity or yaw: empty cells, covariance present
+            assert rows[1][3:6] == ["", "", ""] and rows[1][6] != ""
+    summary = json.loads((out / "run.json").read_text())
+    assert summary["layout"] == "optimized"
+    assert summary["estimators"]["fusion-ekf"]["wall_time_s"] > 0
+    assert "ranges_gated" in summary["estimators"]["fusion-ekf"]["diagnostics"]
+    assert {e.name for e in read_estimates(out / "estimates.mcap")} == {"fusion-ekf", "rfid-ekf"}
+
+
+def _bad(args, capsys, out):
+    code = main(args)
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1 and "error" in err and "Traceback" not in err
+    assert not out.exists() or not any(out.iterdir())
+    return err
+
+
+def test_bad_inputs(drive_file, tmp_path, capsys):
+    out = tmp_path / "out"
+    assert "no-such" in _bad(["run", str(tmp_path / "no-such.mcap"), "-e", "dr", "--out-dir", str(out)], capsys, out)
+    junk = tmp_path / "junk.mcap"
+    junk.write_bytes(b"not an mcap file at all")
+    _bad(["run", str(junk), "-e", "dr", "--out-dir", str(out)], capsys, out)
+    assert "unknown estimator" in _bad(["run", str(drive_file), "-e", "nope", "--out-dir", str(out)], capsys, out)
+    assert "layout" in _bad(["run", str(drive_file), "-e", "dr", "--layout", "sparse", "--out-dir", str(out)], capsys, out)
+    bad_model = tmp_path / "model.json"
+    bad_model.write_text("{]")
+    _bad(["run", str(drive_file), "-e", "dr", "--range-model", str(bad_model), "--out-dir", str(out)], capsys, out)
+
+
+def test_missing_channel_writes_nothing(tmp_path, capsys):
+    drive = make_drive(duration_s=5.0)
+    path = tmp_path / "nowheel.mcap"
+    write_drive(path, drive.replace(channels={k: v for k, v in drive.channels.items() if k != "wheel"}))
+    out = tmp_path / "out"
+    err = _bad(["run", str(path), "-e", "rfid-ekf", "-e", "fusion-ekf", "--out-dir", str(out)], capsys, out)
+    assert "wheel" in err
