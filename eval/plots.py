@@ -100,12 +100,23 @@ def trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: st
 
 
 def _shade_windows(ax, drive: Drive) -> None:
+    """Shade the labelled intervals: where the vehicle is (``in_tunnel``, ``zone:*``) over the full height,
+    the rest (``straight``, ``curve``, ``fault:*`` ...) as a strip along the top. Windows with the same
+    bounds share one colour and one legend entry."""
     cmap = plt.get_cmap("Pastel1")
-    labels = sorted({w.label for w in drive.windows})
+    spans: dict[tuple[float, float, bool], list[str]] = {}
     for w in drive.windows:
-        i = labels.index(w.label)
-        ax.axvspan(w.start_s, w.end_s, color=cmap(i % 9), alpha=0.45, lw=0,
-                   label=w.label if w is drive.window(w.label)[0] else None)
+        full = w.label == "in_tunnel" or w.label.startswith("zone:")
+        labels = spans.setdefault((w.start_s, w.end_s, full), [])
+        if w.label not in labels:
+            labels.append(w.label)
+    legend: dict[str, int] = {}
+    for (start, end, full), labels in spans.items():
+        name = " = ".join(labels)
+        first = name not in legend
+        colour = cmap(legend.setdefault(name, len(legend)) % 9)
+        ymin, alpha = (0.0, 0.35) if full else (0.94, 0.9)
+        ax.axvspan(start, end, ymin=ymin, ymax=1.0, color=colour, alpha=alpha, lw=0, label=name if first else None)
 
 
 def error_vs_time(drive: Drive, estimates: list[Estimate], path: Path) -> Path:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import time
 
 import pytest
 
@@ -56,9 +55,7 @@ def test_layout_study_curve(tmp_path):
 
 @pytest.mark.slow
 def test_reproduce_quick_end_to_end(tmp_path):
-    t0 = time.perf_counter()
     code = main(["reproduce", "--quick", "-o", str(tmp_path), "--no-progress"])
-    took = time.perf_counter() - t0
     for name in ("report.md", "report.html", "results.json"):
         assert (tmp_path / name).stat().st_size > 0
     res = json.loads((tmp_path / "results.json").read_text())
@@ -66,4 +63,3 @@ def test_reproduce_quick_end_to_end(tmp_path):
             "liu2016-zones", "degraded"} <= set(res["tables"])
     failed = [r for r in res["runs"] if r["error"] and not r["not_applicable"]]
     assert code == (1 if failed else 0)
-    assert took < 180
