@@ -22,6 +22,8 @@ from eval.report import Report, write_json
 from graphpos.errors import ConfigError
 
 DEFAULT_ESTIMATORS = ("fusion-ekf", "fukf", "graph-isam2", "graph-batch")
+#: Reference without tags.
+BASELINE = "dr"
 #: Layouts in order of decreasing tag count, where the drive has them.
 LAYOUTS = ("dense", "optimized", "groups-60m", "groups-90m", "groups-120m")
 
@@ -46,6 +48,7 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
         raise ConfigError(f"scenario '{scenario}' has no RFID tags: nothing to study")
     n_tags = {name: int(drive.tags.layout(name).size) for name in layouts}
     jobs = [Job(src, est, layout=lay, tag={"layout": lay}) for lay in layouts for est in names for src in sources]
+    jobs += [Job(src, BASELINE) for src in sources]
     results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="layout-study")
     by = {(j.layout, j.estimator, j.source): r for j, r in zip(jobs, results)}
 
@@ -64,6 +67,11 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
                            "max_in_tunnel_m": [window_stat(r, "in_tunnel", "max_m") for r in rs],
                            "errors": [r.error for r in rs]})
         rows.append(row)
+    baseline = [by[(None, BASELINE, s)] for s in sources]
+    rows.append([f"no tags ({BASELINE})", "0"] + [seeds_cell(baseline, "in_tunnel", "rms_m")] * len(names))
+    base_rms = [window_stat(r, "in_tunnel", "rms_m") for r in baseline]
+    record.append({"layout": None, "n_tags": 0, "estimator": BASELINE, "rms_in_tunnel_m": base_rms,
+                   "errors": [r.error for r in baseline]})
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
@@ -72,7 +80,11 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
     sec.text(f"Mean ± STD over {seeds} seed(s) of the Euclidean RMS error in the in_tunnel window, metres. "
              "Same drives for every layout; a layout keeps only its tags' readings.")
     sec.table(["layout", "tags"] + names, rows)
-    sec.figure(plots.cost_accuracy(points, folder / "cost_accuracy.png", f"{scenario}: cost against accuracy"))
+    sec.text(f"The last row is dead reckoning ({BASELINE}: wheel speed, gyro and compass, no tags) on the same "
+             "drives: what the tags have to beat.")
+    ok = [v for v in base_rms if np.isfinite(v)]
+    sec.figure(plots.cost_accuracy(points, folder / "cost_accuracy.png", f"{scenario}: cost against accuracy",
+                                   baseline_m=float(np.mean(ok)) if ok else None))
     add_failure_section(report, results)
     took = time.perf_counter() - started
     report.section("Run").text(f"{len(results)} runs in {took:.0f} s.")

@@ -163,12 +163,16 @@ def speed_error(drive: Drive, estimates: list[Estimate], path: Path) -> Path | N
     return _save(fig, path)
 
 
-def cost_accuracy(points: dict[str, list[tuple[float, float, float]]], path: Path, title: str) -> Path:
+def cost_accuracy(points: dict[str, list[tuple[float, float, float]]], path: Path, title: str,
+                  baseline_m: float | None = None) -> Path:
     """RMS error (with spread bars) against number of tags, one line per estimator.
 
-    ``points``: estimator -> [(n_tags, mean RMS, STD of RMS over seeds)].
+    ``points``: estimator -> [(n_tags, mean RMS, STD of RMS over seeds)]; ``baseline_m``: the RMS
+    without tags (dead reckoning), drawn as a horizontal line.
     """
     fig, ax = plt.subplots(figsize=(7, 4.5))
+    if baseline_m is not None:
+        ax.axhline(baseline_m, color="0.4", ls=":", label="no tags (dead reckoning)")
     colors = _colors(list(points))
     for name, pts in points.items():
         pts = sorted(p for p in pts if np.isfinite(p[1]))
