@@ -240,11 +240,16 @@ class _InputHold:
         return Q
 
     def propagate(self, x: np.ndarray, dt: float, jacobian: bool):
-        """``(x_next, F)``: eq. 16, or the fallback without accelerometers."""
-        if self.has_accel:
-            out, jac = vehicle.improved_motion(x, self.u, dt, jacobian)
-            return out, (jac[0] if jac is not None else None)
-        return vehicle.rotating_velocity_motion(x, float(self.u[2]), dt, jacobian)
+        """``(x_next, F)`` with the held input (see :func:`_propagate`)."""
+        return _propagate(x, dt, self.u, self.has_accel, jacobian)
+
+
+def _propagate(x: np.ndarray, dt: float, u: np.ndarray, has_accel: bool, jacobian: bool):
+    """``(x_next, F)``: eq. 16, or the fallback without accelerometers."""
+    if has_accel:
+        out, jac = vehicle.improved_motion(x, u, dt, jacobian)
+        return out, (jac[0] if jac is not None else None)
+    return vehicle.rotating_velocity_motion(x, float(u[2]), dt, jacobian)
 
 
 def _wheel_covariance(cfg: VehicleFilterConfig) -> np.ndarray:
@@ -545,6 +550,7 @@ class Fukf(FilterEstimator):
         pts = MerweScaledSigmaPoints(5, cfg.ukf_alpha, cfg.ukf_beta, cfg.ukf_kappa)
         self._hold = _InputHold(cfg)
         self._local = [UnscentedKalmanFilter(x0, P0, pts, angle_states=(4,)) for _ in range(2)]
+        self._steps_1: list[tuple[float, np.ndarray, bool]] = []
         self._x, self._P = x0, P0
         self._set_beta(cfg.beta_few_tags)
         self._reset()
@@ -562,6 +568,7 @@ class Fukf(FilterEstimator):
             f.reset(self._x, P_j)
 
     def _fuse(self):
+        self._sync_range_filter()
         self._x, self._P = fuse([(f.x, f.P) for f in self._local], angle_states=(4,))
         self.diagnostics["fusions"] += 1
 
@@ -570,10 +577,29 @@ class Fukf(FilterEstimator):
         if dt <= 0.0:
             return
         hold = self._hold
-        Q = hold.Q(dt)
-        fx = lambda S: hold.propagate(S, dt, False)[0]  # noqa: E731
-        for f, b in zip(self._local, self._beta):
-            f.predict(fx, Q / b)
+        self._local[1].predict(lambda S: hold.propagate(S, dt, False)[0], hold.Q(dt) / self._beta[1])
+        self._steps_1.append((dt, hold.u, hold.has_accel))
+
+    def _sync_range_filter(self):
+        """Predict the range filter through the IMU steps since its last use.
+
+        Between scans it has no measurement, so it is predicted lazily, in
+        one unscented transform: its sigma points go through every held IMU
+        step since the last fusion (eq. 16 applied step by step), with the
+        process noise of the whole interval. Same model, one transform
+        instead of ten; ten times cheaper.
+        """
+        steps, self._steps_1 = self._steps_1, []
+        if not steps:
+            return
+
+        def fx(S):
+            for dt, u, has_accel in steps:
+                S = _propagate(S, dt, u, has_accel, False)[0]
+            return S
+
+        total = sum(dt for dt, _, _ in steps)
+        self._local[0].predict(fx, _process_noise(self.config, total, self._hold.psd()) / self._beta[0])
 
     def _on_imu(self, t_s, accel_x, accel_y, yaw_rate):
         self._hold.set(accel_x, accel_y, yaw_rate)

@@ -21,7 +21,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from filters.core.ekf import gate_scalar_rows
-from filters.models.angles import angle_residual, circular_mean, wrap_angle
+from filters.models.angles import circular_mean, wrap_angle
 
 
 class MerweScaledSigmaPoints:
@@ -70,7 +70,7 @@ def _mean(points: np.ndarray, Wm: np.ndarray, angles: Sequence[int]) -> np.ndarr
 def _deviations(points: np.ndarray, mean: np.ndarray, angles: Sequence[int]) -> np.ndarray:
     d = points - mean
     for i in angles:
-        d[:, i] = angle_residual(points[:, i], mean[i])
+        d[:, i] = wrap_angle(d[:, i])
     return d
 
 
@@ -138,21 +138,27 @@ class UnscentedKalmanFilter:
         """
         sig = self.points.sigma_points(self.x, self.P)
         Wm, Wc = self.points.Wm, self.points.Wc
-        Z = np.atleast_2d(hx(sig).reshape(sig.shape[0], -1))
+        Z = hx(sig).reshape(sig.shape[0], -1)
         z = np.atleast_1d(np.asarray(z, dtype=np.float64))
-        R = np.diag(R) if np.ndim(R) == 1 else np.atleast_2d(R)
         z_mean = _mean(Z, Wm, angle_measurements)
         dz = _deviations(Z, z_mean, angle_measurements)
-        Pzz = dz.T @ (Wc[:, None] * dz) + R
+        Pzz = dz.T @ (Wc[:, None] * dz)
+        if np.ndim(R) == 1:
+            Pzz.flat[:: Pzz.shape[0] + 1] += R
+        else:
+            Pzz += R
         nu = z - z_mean
         for i in angle_measurements:
-            nu[i] = angle_residual(float(z[i]), float(z_mean[i]))
-        accepted = gate_scalar_rows(nu, np.diag(Pzz).copy(), gate_probability)
-        if not accepted.any():
-            return 0.0, accepted
-        if not accepted.all():
-            dz, nu = dz[:, accepted], nu[accepted]
-            Pzz = Pzz[np.ix_(accepted, accepted)]
+            nu[i] = wrap_angle(float(nu[i]))
+        if gate_probability < 1.0:
+            accepted = gate_scalar_rows(nu, Pzz.diagonal().copy(), gate_probability)
+            if not accepted.any():
+                return 0.0, accepted
+            if not accepted.all():
+                dz, nu = dz[:, accepted], nu[accepted]
+                Pzz = Pzz[np.ix_(accepted, accepted)]
+        else:
+            accepted = np.ones(nu.shape[0], dtype=bool)
         dx = _deviations(sig, self.x, self.angle_states)
         Pxz = dx.T @ (Wc[:, None] * dz)
         Pzz_inv = np.linalg.inv(Pzz)
