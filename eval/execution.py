@@ -56,8 +56,8 @@ class FileSource:
 class SimSource:
     """A simulated drive: the arguments of :func:`graphpos.sim.simulate`.
 
-    ``overrides_json`` holds the (nested) overrides as JSON so that the
-    source hashes and caches.
+    ``overrides_json`` and ``faults_json`` hold the (nested) parameter
+    overrides and fault specs as JSON so that the source hashes and caches.
     """
 
     scenario: str
@@ -66,6 +66,7 @@ class SimSource:
     duration_s: float | None = None
     overrides_json: str = ""
     rfid_latency_s: tuple[float, float] | None = None
+    faults_json: str = ""
 
     def load(self) -> Drive:
         from graphpos.sim import simulate
@@ -77,11 +78,13 @@ class SimSource:
             duration_s=self.duration_s,
             overrides=json.loads(self.overrides_json) if self.overrides_json else None,
             rfid_latency_s=self.rfid_latency_s,
+            faults=json.loads(self.faults_json) if self.faults_json else None,
         )
 
     def describe(self) -> dict[str, Any]:
         out = dataclasses.asdict(self)
         out["overrides"] = json.loads(out.pop("overrides_json") or "{}")
+        out["faults"] = json.loads(out.pop("faults_json") or "{}")
         return out
 
 

@@ -35,7 +35,7 @@ def test_reproduce_tables_with_failures_in_cells(tmp_path, monkeypatch):
     md = (tmp_path / "out" / "report.md").read_text()
     assert "| RFID-EKF | dense | 9.27 | 5.07 |" in md
     assert "FAILED: ConfigError: unknown estimator 'no-such'" in md
-    assert "Late measurements and reader faults" in md and "Plaza" in md and "song2016 Table 1" in md
+    assert "Late measurements and faults" in md and "fault:rfid_blackout" in md and "Plaza" in md and "song2016 Table 1" in md
     assert [r.job.estimator for r in outcome.failures] == ["no-such", "no-such"]
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     row = res["tables"]["t"]["rows"][0]
