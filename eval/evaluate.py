@@ -107,10 +107,9 @@ def wheel_line(results: list[JobResult], window: str) -> str | None:
     return None
 
 
-def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], folder: Path,
+def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], sub: Path,
                        layout: str | None = None, exports: bool = True) -> Section:
-    """Tables, plots and exports of one drive."""
-    sub = folder / safe_name(drive.name)
+    """Tables, plots and exports of one drive (files in the folder ``sub``)."""
     sec = report.section(f"Drive {drive.name}")
     sec.text(f"Duration {drive.duration_s:.1f} s; channels {', '.join(drive.channels)}; "
              f"{len(drive.tags)} tags, {len(drive.rsus)} RSUs" + (f"; layout {layout}" if layout else "") + ".")
@@ -171,13 +170,16 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
         "estimate epochs, no alignment). 2DRMS = 2 x RMS of the horizontal error. ANEES band: two-sided 95 % "
         "chi-square band for independent epochs. RTF = wall time / drive duration."
     )
+    used: set[str] = set()
     for i, (_, drive) in enumerate(drives):
         mine = [r for r in results if r.job.tag["drive_index"] == i]
-        add_drive_sections(report, drive, mine, folder, layout=layout)
+        stem = safe_name(drive.name)
+        stem = stem if stem not in used else f"{stem}-{i + 1}"  # two drives of the same name
+        used.add(stem)
+        add_drive_sections(report, drive, mine, folder / stem, layout=layout)
         if mcap:
             # graphpos.io.write_drive writes atomically
-            write_drive(folder / safe_name(drive.name) / f"{safe_name(drive.name)}.mcap", drive,
-                        estimates=[r.estimate for r in mine if r.ok])
+            write_drive(folder / stem / f"{stem}.mcap", drive, estimates=[r.estimate for r in mine if r.ok])
     add_failure_section(report, results)
     write_json(folder / "results.json", {
         "command": "evaluate",

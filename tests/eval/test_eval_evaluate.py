@@ -88,3 +88,12 @@ def test_execute_keeps_job_order(drive, test_estimators):
     results = execute(jobs, workers=2, progress=False)
     assert [r.job.estimator for r in results] == ["broken", "noisy-truth", "broken"]
     assert [r.ok for r in results] == [False, True, False]
+
+
+def test_two_drives_of_the_same_name_get_their_own_folders(tmp_path, drive, make_drive, test_estimators):
+    other = make_drive(duration_s=5.0)
+    evaluate([(drive, drive), (other, other)], ["noisy-truth"], tmp_path, workers=1, progress=False, mcap=False)
+    assert (tmp_path / "straight" / "trajectories.png").exists()
+    assert (tmp_path / "straight-2" / "trajectories.png").exists()
+    res = json.loads((tmp_path / "results.json").read_text())
+    assert [r["metrics"]["n_outputs"] for r in res["results"]] == [len(drive.truth), len(other.truth)]
