@@ -6,6 +6,8 @@ filters' model predicts (zero-error test); noisy drives add white sensor
 noise of the paper's magnitudes and range noise growing with distance.
 """
 
+from pathlib import Path
+
 import numpy as np
 
 from filters.models import vehicle
@@ -86,3 +88,7 @@ def mean_nees(drive, estimate):
     t = estimate.t_s
     d = np.column_stack([estimate.east_m - np.interp(t, tr.t_s, tr.east_m), estimate.north_m - np.interp(t, tr.t_s, tr.north_m)])
     return float(np.mean(np.einsum("ni,nij,nj->n", d, np.linalg.inv(estimate.cov_en_m2), d)))
+
+
+#: The CMU Plaza dataset (gyro-only IMU, no compass, UWB ranges), read in place.
+PLAZA1 = Path(__file__).resolve().parents[2] / "../shared/data/plaza/Plaza1.mat"
