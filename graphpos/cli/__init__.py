@@ -24,6 +24,7 @@ _COMMAND_MODULES = (
     "graphpos.cli.ranging",
     "graphpos.cli.estimators",
     "graphpos.cli.evaluation",
+    "graphpos.cli.faults",
 )
 
 
