@@ -74,6 +74,17 @@ def _deviations(points: np.ndarray, mean: np.ndarray, angles: Sequence[int]) -> 
     return d
 
 
+def _inverse(S: np.ndarray) -> np.ndarray:
+    """Inverse of a small SPD matrix (closed form for 1x1 and 2x2: the hot path)."""
+    m = S.shape[0]
+    if m == 1:
+        return 1.0 / S
+    if m == 2:
+        a, b, c, d = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
+        return np.array([[d, -b], [-c, a]]) / (a * d - b * c)
+    return np.linalg.inv(S)
+
+
 class UnscentedKalmanFilter:
     """An additive-noise UKF on a state of any size.
 
@@ -161,7 +172,7 @@ class UnscentedKalmanFilter:
             accepted = np.ones(nu.shape[0], dtype=bool)
         dx = _deviations(sig, self.x, self.angle_states)
         Pxz = dx.T @ (Wc[:, None] * dz)
-        Pzz_inv = np.linalg.inv(Pzz)
+        Pzz_inv = _inverse(Pzz)
         K = Pxz @ Pzz_inv
         x = self.x + K @ nu
         for i in self.angle_states:

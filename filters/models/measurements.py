@@ -96,7 +96,9 @@ def body_velocity(x: np.ndarray, jacobian: bool = True):
     else:
         c, s = np.cos(x[..., YAW]), np.sin(x[..., YAW])
         ve, vn = x[..., VE], x[..., VN]
-        v = np.stack([ve * c + vn * s, -ve * s + vn * c], axis=-1)
+        v = np.empty(x.shape[:-1] + (2,))
+        v[..., 0] = ve * c + vn * s
+        v[..., 1] = vn * c - ve * s
     if not jacobian:
         return v, None
     H = np.zeros((2, x.shape[-1]))
