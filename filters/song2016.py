@@ -184,7 +184,9 @@ class TwoLevelEkfConfig(VehicleFilterConfig):
     Attributes
     ----------
     level1 : RfidEkfConfig
-        The first-level RFID-EKF.
+        The first-level RFID-EKF. It alone uses the ranges, so the range
+        settings inherited at the top level (``range_gate_probability``,
+        ``range_sigma_scale``) do not apply; level 1's do.
     fix_covariance_scale : float
         The level-2 EKF takes each level-1 position with the level-1
         covariance times this factor as R (song2016b gives no R). Well above
@@ -260,11 +262,11 @@ def _propagate(x: np.ndarray, dt: float, u: np.ndarray, has_accel: bool, jacobia
     return vehicle.rotating_velocity_motion(x, float(u[2]), dt, jacobian)
 
 
-def _wheel_covariance(cfg: VehicleFilterConfig) -> np.ndarray:
-    """R of a wheel reading: its speed, and the zero-sideways pseudo-measurement if on."""
+def _wheel_variances(cfg: VehicleFilterConfig) -> np.ndarray:
+    """Diagonal R of a wheel reading: its speed, and the zero-sideways pseudo-measurement if on."""
     if cfg.lateral_velocity_sigma_mps is None:
-        return np.array([[cfg.wheel_sigma_mps**2]])
-    return np.diag([cfg.wheel_sigma_mps**2, cfg.lateral_velocity_sigma_mps**2])
+        return np.array([cfg.wheel_sigma_mps**2])
+    return np.array([cfg.wheel_sigma_mps**2, cfg.lateral_velocity_sigma_mps**2])
 
 
 def _initial_covariance(cfg: VehicleFilterConfig) -> np.ndarray:
@@ -304,7 +306,7 @@ class _VehicleEkf(FilterEstimator):
         self._x = _initial_state(drive, t0_s)
         self._P = _initial_covariance(self.config)
         self._hold = _InputHold(self.config)
-        self._R_wheel = np.diag(_wheel_covariance(self.config))
+        self._R_wheel = _wheel_variances(self.config)
         self._R_compass = np.array([self.config.compass_sigma_rad**2])
 
     def _predict_to(self, t_s: float) -> None:
@@ -562,7 +564,7 @@ class Fukf(FilterEstimator):
         self._x, self._P = x0, P0
         self._set_beta(cfg.beta_few_tags)
         self._reset()
-        self._R_wheel = np.diag(_wheel_covariance(cfg))
+        self._R_wheel = _wheel_variances(cfg)
         self._R_compass = np.array([cfg.compass_sigma_rad**2])
         self.diagnostics["fusions"] = 0
 
