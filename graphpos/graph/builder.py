@@ -39,8 +39,14 @@ from graphpos.graph.odometry import PlanarOdometry
 WEAK_POSITION_SIGMA_M = 30.0
 #: Yaw sigma at start-up when neither an initial pose nor a compass gives it.
 UNKNOWN_YAW_SIGMA_RAD = math.pi
+#: A landmark key is reused for sightings at most this far apart, s.
+LANDMARK_LIFETIME_S = 3.0
 #: Ranges used together to anchor the start-up track, s.
 ANCHOR_WINDOW_S = 10.0
+#: Two anchor solutions farther apart than this (m) are distinct; the best
+#: must beat every distinct rival by this chi-square margin, or anchoring waits.
+ANCHOR_AMBIGUITY_M = 2.0
+ANCHOR_CHI2_MARGIN = 9.0
 
 
 @dataclass
@@ -79,8 +85,12 @@ class GraphBuilder:
     max_delay_s : float
         Latest arrival accepted for a reading of an existing keyframe.
     landmark_lifetime_s : float
-        A landmark key unused for longer gets a fresh key (fixed-lag
-        smoothers marginalise old keys; a key cannot come back).
+        A landmark key unused for longer gets a fresh key. Landmarks are
+        known points held by tight priors, so a fresh key per sighting loses
+        nothing, and it keeps the Bayes tree free of loop closures: one key
+        per beacon across a whole drive (Plaza: 4 beacons, 32 minutes) makes
+        every iSAM2 update re-eliminate most of the tree. Fixed-lag smoothers
+        also marginalise old keys, which cannot come back.
     keep_history : bool
         Keep every factor (for batch solves and range-scale estimation).
     range_scale : float
@@ -100,7 +110,7 @@ class GraphBuilder:
         drive: Drive,
         range_model,
         max_delay_s: float,
-        landmark_lifetime_s: float = math.inf,
+        landmark_lifetime_s: float = LANDMARK_LIFETIME_S,
         keep_history: bool = True,
         range_scale: float = 1.0,
         initial_pose: tuple[float, float, float] | None = None,
@@ -142,7 +152,7 @@ class GraphBuilder:
         self.anchored = initial_pose is not None
         self._backlog: list[Increment] = []
         self._backlog_landmarks: dict[int, np.ndarray] = {}
-        self._pre_anchor_ranges: list[tuple[int, tuple[str, int], float]] = []
+        self._pre_anchor_ranges: list[tuple[int, tuple[str, int], float, float]] = []
         self._first_yaw: float | None = None
         # history for batch solves / scale estimation
         self.fixed_factors = gtsam.NonlinearFactorGraph()
@@ -378,28 +388,31 @@ class GraphBuilder:
             k, (_, e, n, _) = fixes[0]
             s = self.states[k]
             return e - s.east_m, n - s.north_m
-        self._pre_anchor_ranges.extend((k, e[1], e[2] / self.range_scale) for k, e in ready if e[0] == "range")
+        self._pre_anchor_ranges.extend((k, e[1], e[2] / self.range_scale, e[3] / self.range_scale) for k, e in ready if e[0] == "range")
         if not self._pre_anchor_ranges:
             return None
-        k_last = max(k for k, _, _ in self._pre_anchor_ranges)
-        recent = [(k, w, r) for k, w, r in self._pre_anchor_ranges if (k_last - k) * self.period_s <= ANCHOR_WINDOW_S]
-        if len({w for _, w, _ in recent}) < 2:
+        k_last = max(k for k, *_ in self._pre_anchor_ranges)
+        recent = [r for r in self._pre_anchor_ranges if (k_last - r[0]) * self.period_s <= ANCHOR_WINDOW_S]
+        if len({w for _, w, _, _ in recent}) < 2:
             return None
-        dr = np.array([[self.states[k].east_m, self.states[k].north_m] for k, _, _ in recent])
-        marks = np.array([self._landmark_position(w) for _, w, _ in recent])
-        reading = np.array([r for _, _, r in recent])
+        dr = np.array([[self.states[k].east_m, self.states[k].north_m] for k, *_ in recent])
+        marks = np.array([self._landmark_position(w) for _, w, _, _ in recent])
+        reading = np.array([r for _, _, r, _ in recent])
+        sigma = np.array([s for *_, s in recent])
 
         def residual(offset: np.ndarray) -> np.ndarray:
-            return np.hypot(*(dr + offset - marks).T) - reading
+            return (np.hypot(*(dr + offset - marks).T) - reading) / sigma
 
-        best = None
-        for angle in np.linspace(0.0, 2 * np.pi, 8, endpoint=False):
+        fits = []
+        for angle in np.linspace(0.0, 2 * np.pi, 12, endpoint=False):
             start = marks[-1] + reading[-1] * np.array([math.cos(angle), math.sin(angle)]) - dr[-1]
-            fit = least_squares(residual, start, loss="soft_l1")
-            if best is None or fit.cost < best.cost:
-                best = fit
+            fits.append(least_squares(residual, start, loss="soft_l1"))
+        best = min(fits, key=lambda f: f.cost)
         if np.linalg.cond(best.jac.T @ best.jac) > 1e6:
             return None  # landmarks in line with the track so far: wait for more
+        rivals = [f.cost for f in fits if np.linalg.norm(f.x - best.x) > ANCHOR_AMBIGUITY_M]
+        if rivals and min(rivals) - best.cost < ANCHOR_CHI2_MARGIN / 2:
+            return None  # a mirror solution fits almost as well (tags passed on both sides): wait
         self.diagnostics["anchor_keyframe"] = k_last
         return float(best.x[0]), float(best.x[1])
 

@@ -33,7 +33,7 @@ from graphpos.graph.config import GraphConfig
 from graphpos.graph.models import KeyframeState, make_model
 from graphpos.graph.smoothers import FixedLagSmoother, Isam2Smoother, ValuesSource, gtsam_error
 
-#: Extra iSAM2 iterations when the start-up backlog is released (large first step).
+#: Extra (relinearising) iSAM2 updates when the start-up backlog is released.
 ANCHOR_ITERATIONS = 4
 
 _CHANNELS = ("imu", "wheel", "compass", "rfid", "rsu", "gnss")
@@ -202,7 +202,6 @@ class GraphFixedLag(_GraphEstimator):
     def _builder_options(self) -> dict[str, Any]:
         return {
             "max_delay_s": self.config.max_delay_s,
-            "landmark_lifetime_s": 0.5 * self.config.fixed_lag_s,
             "keep_history": False,
             "release_window_s": self.config.fixed_lag_s - self.config.max_delay_s - 1.0 / self.config.keyframe_rate_hz,
         }

@@ -48,7 +48,11 @@ class KeyframeState:
 
 
 def robust(sigma: float | np.ndarray, config: GraphConfig, dim: int = 1) -> gtsam.noiseModel.Base:
-    """Gaussian noise with the configured M-estimator (Huber/Cauchy/none)."""
+    """Gaussian noise with the configured M-estimator (Huber/Cauchy/none).
+
+    Used for ranges, fixes and the compass (magnetic disturbances near
+    tunnel walls and vehicles give compass outliers of several degrees).
+    """
     base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma)) if np.ndim(sigma) == 0 else gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float))
     if config.robust_loss == "huber":
         return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(config.robust_k), base)
@@ -106,7 +110,7 @@ class PlanarModel:
         return 2
 
     def compass_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
-        return gtsam.PoseRotationPrior2D(X(k), gtsam.Rot2(yaw_rad), gtsam.noiseModel.Isotropic.Sigma(1, sigma_rad))
+        return gtsam.PoseRotationPrior2D(X(k), gtsam.Rot2(yaw_rad), robust(sigma_rad, self.config))
 
     def predict(self, state: KeyframeState, delta: OdometryDelta, pim) -> KeyframeState:
         pose = gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad).compose(gtsam.Pose2(delta.dx_m, delta.dy_m, delta.dtheta_rad))
@@ -241,7 +245,7 @@ class InertialModel:
         return 3
 
     def compass_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
-        noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([self.FREE_SIGMA, self.FREE_SIGMA, sigma_rad]))
+        noise = robust(np.array([self.FREE_SIGMA, self.FREE_SIGMA, sigma_rad]), self.config, 3)
         return gtsam.PoseRotationPrior3D(X(k), gtsam.Rot3.Yaw(yaw_rad), noise)
 
     def predict(self, state: KeyframeState, delta: OdometryDelta, pim) -> KeyframeState:

@@ -31,7 +31,9 @@ def test_start_up_before_any_range_without_a_start_pose(name, parameterisation):
     est = run(name, drive, parameterisation=parameterisation, initial_pose_from_reference=False)
     assert np.all(np.isfinite(est.position))
     first_range_s = drive.rfid.t_s[0]
-    assert est.diagnostics["anchor_keyframe"] == round((first_range_s - drive.start_s) * 10)
+    # anchored once two tags fix the position unambiguously, within seconds
+    anchor_s = drive.start_s + est.diagnostics["anchor_keyframe"] / 10
+    assert first_range_s <= anchor_s <= first_range_s + 3.0
     err = position_errors(drive, est)
     settled = est.t_s > first_range_s + 5.0
     assert rms(err[settled]) < 0.5

@@ -1,0 +1,103 @@
+"""Speed and memory of the GTSAM estimators (issue 6).
+
+Prints, as ratios to real time:
+
+- a ``--short`` (default 10-minute) simulated drive with 100 Hz IMU:
+  ``graph-isam2`` (target >= 100x real time, p95 update < 5 ms),
+  ``graph-batch`` (target < 5 s) and ``graph-fixed-lag``;
+- a ``--long`` (default 60-minute) drive: ``graph-fixed-lag``'s cost
+  against its short-drive cost (target <= 6.5x) and its resident memory
+  through the run (target: flat).
+
+    python benchmarks/graph.py [--scenario long-tunnel] [--short 600] [--long 3600]
+                               [--parameterisation auto|planar|inertial] [--skip-long]
+
+"p95 update" is the 95th percentile of the wall time of one keyframe's
+smoother update plus reading its estimate; "per keyframe" is the whole
+online cost (preintegration, factor building, update, covariance) divided
+by the number of keyframes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from graphpos.graph import ESTIMATORS
+from graphpos.graph.config import GraphConfig
+from graphpos.sim import simulate
+
+
+def rss_mb() -> float:
+    """Resident set size of this process, MB (Linux /proc)."""
+    with open("/proc/self/statm") as fh:
+        pages = int(fh.read().split()[1])
+    return pages * 4096 / 1e6
+
+
+def timed_run(name: str, drive, config: GraphConfig, sample_rss: bool = False) -> dict:
+    """Run ``name`` on ``drive`` through start/process/finish, sampling RSS."""
+    est = ESTIMATORS[name](config)
+    drive = est.prepare(drive)
+    measurements = list(drive.measurements(est.channels_used(drive)))
+    rss = []
+    checkpoints = set(np.linspace(0, len(measurements) - 1, 7).astype(int).tolist()) if sample_rss else set()
+    t0 = time.perf_counter()
+    est.start(drive)
+    for i, m in enumerate(measurements):
+        est.process(m)
+        if i in checkpoints:
+            rss.append(rss_mb())
+    result = est.finish()
+    wall = time.perf_counter() - t0
+    d = result.diagnostics
+    return {
+        "wall_s": wall,
+        "realtime_x": drive.duration_s / wall,
+        "per_keyframe_ms": wall / max(d["keyframes"], 1) * 1e3,
+        "update_mean_ms": d["update_ms_mean"],
+        "update_p95_ms": d["update_ms_p95"],
+        "parameterisation": d["parameterisation"],
+        "rss_mb": rss,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="long-tunnel")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--short", type=float, default=600.0, help="short drive, s (default 600)")
+    ap.add_argument("--long", type=float, default=3600.0, help="long drive, s (default 3600)")
+    ap.add_argument("--parameterisation", default="auto", choices=("auto", "planar", "inertial"))
+    ap.add_argument("--skip-long", action="store_true")
+    args = ap.parse_args()
+    config = GraphConfig(parameterisation=args.parameterisation)
+
+    short = simulate(args.scenario, seed=args.seed, duration_s=args.short)
+    print(f"{args.scenario} seed {args.seed}: {short.duration_s:.0f} s drive, IMU {len(short.imu)} samples")
+    results = {}
+    for name in ("graph-isam2", "graph-batch", "graph-fixed-lag"):
+        r = timed_run(name, short, config)
+        results[name] = r
+        print(
+            f"  {name:16s} [{r['parameterisation']}] {r['wall_s']:7.2f} s = {r['realtime_x']:6.1f}x real time, "
+            f"{r['per_keyframe_ms']:.2f} ms/keyframe, update mean {r['update_mean_ms']:.2f} ms, p95 {r['update_p95_ms']:.2f} ms"
+        )
+    if args.skip_long:
+        return
+    long = simulate(args.scenario, seed=args.seed, duration_s=args.long)
+    r = timed_run("graph-fixed-lag", long, config, sample_rss=True)
+    ratio = r["wall_s"] / results["graph-fixed-lag"]["wall_s"]
+    print(
+        f"{long.duration_s:.0f} s drive: graph-fixed-lag {r['wall_s']:.1f} s = {r['realtime_x']:.1f}x real time, "
+        f"{ratio:.2f}x its {short.duration_s:.0f} s cost (length ratio {long.duration_s / short.duration_s:.1f}), "
+        f"update p95 {r['update_p95_ms']:.2f} ms"
+    )
+    rss = r["rss_mb"]
+    print("  RSS through the run (MB): " + ", ".join(f"{x:.0f}" for x in rss) + f"; growth after the first sixth {rss[-1] - rss[1]:+.0f} MB")
+
+
+if __name__ == "__main__":
+    main()
