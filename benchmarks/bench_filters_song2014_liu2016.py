@@ -13,27 +13,21 @@ printed for the simulator's default IMU and for an uncompensated in-car
 accelerometer (bias 1-sigma 0.2 m/s^2: mounting tilt and road grade leak
 gravity into a_x, a_y).
 
-    python benchmarks/filters_2014_2016.py [--seeds 10] [--duration 600] [--skip-speed] [--skip-tables]
+    python benchmarks/bench_filters_song2014_liu2016.py [--seeds 10] [--duration 600] [--skip-speed] [--skip-tables]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
-# run as a script, this folder comes first on sys.path, and its filters.py
-# (the song2016 benchmark) would shadow the `filters` package
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
-
-from eval.metrics import evaluate_estimate  # noqa: E402
-from filters.liu2016 import FederatedKf, Liu2016Config  # noqa: E402
-from graphpos.registry import make_estimator  # noqa: E402
-from graphpos.sim import simulate  # noqa: E402
+from eval.metrics import evaluate_estimate
+from filters.liu2016 import FederatedKf, Liu2016Config
+from graphpos.registry import make_estimator
+from graphpos.sim import simulate
 
 SONG2014_TABLE2 = {"lms-federated": (7.33, 3.01), "multilateration": (11.17, 5.72)}
 SONG2014_TABLE4 = {"lms-federated": {"whole": (19.01, 4.64), "in_tunnel": (8.57, 2.82)},

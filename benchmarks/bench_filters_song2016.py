@@ -4,7 +4,7 @@ Prints, per estimator, the wall time of ``run``, its CPU time (the process's
 own, less sensitive to other work on a shared machine) and how many times
 faster than real time each is (issue 4 asks for at least 200x: under 3 s).
 
-    python benchmarks/filters.py [--duration 600] [--scenario paper-straight] [--repeat 3] [-e NAME ...]
+    python benchmarks/bench_filters_song2016.py [--duration 600] [--scenario paper-straight] [--repeat 3] [-e NAME ...]
 
 The drive has the papers' rates: 100 Hz IMU and wheel, 10 Hz compass, 1 Hz
 RFID. The best of ``--repeat`` runs is reported (the machine is shared).
@@ -13,16 +13,10 @@ RFID. The best of ``--repeat`` runs is reported (the machine is shared).
 from __future__ import annotations
 
 import argparse
-import sys
 import time
-from pathlib import Path
 
-# run as a script, this file's folder comes first on sys.path and its name
-# would shadow the `filters` package
-sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != Path(__file__).resolve().parent]
-
-from filters.song2016 import ESTIMATORS  # noqa: E402
-from graphpos.sim import simulate  # noqa: E402
+from filters.song2016 import ESTIMATORS
+from graphpos.sim import simulate
 
 LAYOUTS = {"fukf": "optimized"}
 
