@@ -8,6 +8,10 @@ traceback.
 
 from __future__ import annotations
 
+import os
+from contextlib import contextmanager
+from typing import Iterator
+
 
 class GraphposError(Exception):
     """Base class of every error caused by the user's input."""
@@ -59,3 +63,23 @@ class MissingChannelError(GraphposError):
 
 class EstimationError(GraphposError):
     """An estimator failed on valid input (e.g. an optimiser did not converge)."""
+
+
+@contextmanager
+def naming_file(path: str | os.PathLike) -> Iterator[None]:
+    """Make every :class:`GraphposError` raised inside name the file ``path``.
+
+    For checks made after a file is read (an estimator refusing the drive, a
+    config value out of range), so that the one line the user sees names the
+    file at fault. An error that already names it is left as it is.
+    """
+    try:
+        yield
+    except DriveError as exc:
+        if exc.source is None:
+            raise exc.with_source(str(path)) from None
+        raise
+    except GraphposError as exc:
+        if str(path) in str(exc):
+            raise
+        raise type(exc)(f"{path}: {exc}") from None
