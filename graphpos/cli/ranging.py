@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphpos.errors import ConfigError
+from graphpos.errors import ConfigError, naming_file
 
 
 def register(sub) -> None:
@@ -88,8 +88,9 @@ def _fit(args: argparse.Namespace) -> int:
     if not args.output.parent.is_dir():
         raise ConfigError(f"{args.output.parent}: no such folder for the model file")
     drive = read_drive(args.drive)
-    model = fit_from_drive(drive, args.kind)
-    true_m = true_ranges_m(drive)
+    with naming_file(args.drive):
+        model = fit_from_drive(drive, args.kind)
+        true_m = true_ranges_m(drive)
     reading = drive.rfid[model.input_column]
     params = {k: v for k, v in model.to_dict().items() if np.isscalar(v)}
     print(f"{model.kind} range model fitted to {args.drive.name}: "
@@ -109,11 +110,13 @@ def _check(args: argparse.Namespace) -> int:
 
     model = load_range_model(args.range_model) if args.range_model else None
     drive = read_drive(args.drive)
-    if model is None:
-        model = default_range_model(drive)
+    with naming_file(args.drive):
+        if model is None:
+            model = default_range_model(drive)
+        errors = format_range_errors(range_errors(model, drive))
     source = args.range_model or "default"
     print(f"{model.kind} range model ({source}) on {args.drive.name}: range error (m) by true range")
-    print(format_range_errors(range_errors(model, drive)))
+    print(errors)
     return 0
 
 

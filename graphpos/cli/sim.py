@@ -7,7 +7,7 @@ import json
 import os
 from pathlib import Path
 
-from graphpos.errors import ConfigError, FileFormatError
+from graphpos.errors import ConfigError, FileFormatError, naming_file
 from graphpos.sim.faults import FAULTS
 
 
@@ -90,7 +90,9 @@ def parse_fault(text: str) -> tuple[str, dict[str, float | str]]:
 
 def _simulate(args: argparse.Namespace) -> int:
     from graphpos.io import write_drive
-    from graphpos.sim import load_config, simulate
+    from graphpos.sim import SCENARIOS, default_params, load_config, simulate
+    from graphpos.sim.faults import check_faults
+    from graphpos.sim.params import apply_overrides, check_params
 
     folder = args.output.resolve().parent
     if not folder.is_dir():
@@ -103,6 +105,11 @@ def _simulate(args: argparse.Namespace) -> int:
     faults = overrides.pop("faults", {})
     if not isinstance(faults, dict):
         raise ConfigError(f"{args.config}: 'faults' must be a table of fault kinds")
+    if args.config is not None and args.scenario in SCENARIOS:
+        # The file's values are checked here, so that an error names the file.
+        with naming_file(args.config):
+            check_params(apply_overrides(default_params(args.scenario), overrides))
+            check_faults(faults, args.duration or SCENARIOS[args.scenario].default_duration_s)
     for text in args.fault:
         kind, spec = parse_fault(text)
         before = faults.get(kind)
