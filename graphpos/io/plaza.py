@@ -185,6 +185,10 @@ def import_plaza(path: str | os.PathLike, origin: GeoOrigin = PLAZA_ORIGIN) -> D
         if not known.all():
             row = int(order[np.argmax(~known)])
             raise FileFormatError(f"{path}: array 'TD' row {row}: beacon {td[np.argmax(~known), 2]:g} is not in 'TL'")
+        bad_range = ~np.isfinite(td[:, 3])
+        if bad_range.any():  # a range column may hold NaN in other drives, but every Plaza row is a reading
+            row = int(order[np.argmax(bad_range)])
+            raise FileFormatError(f"{path}: array 'TD' row {row}: range {td[np.argmax(bad_range), 3]} is not a number")
         beacon_xy = tags.positions(td[:, 2].astype(np.int64))
         nan = np.full(len(td), np.nan)
         channels = {
