@@ -12,6 +12,7 @@ GNSS) is marked slow. The figures are those of ``graphpos fault-study``
 from __future__ import annotations
 
 import functools
+import json
 
 import numpy as np
 import pytest
@@ -150,3 +151,43 @@ def test_full_matrix(scenario, duration_s, estimator, fault):
     _check_health(figs, fault, estimator)
     if fault == "rfid_blackout" and scenario.startswith("paper-"):
         _check_blackout(figs, estimator)
+
+
+def test_fault_study_command_writes_its_report(tmp_path, capsys):
+    from graphpos.cli import main
+
+    out = tmp_path / "study"
+    status = main(["fault-study", "paper-straight", "--duration", "30", "-e", "dr,rfid-ekf", "-e", "fusion-ekf",
+                   "--seeds", "1", "--workers", "1", "--no-progress", "-o", str(out)])
+    assert status == 0, capsys.readouterr().err
+    results = json.loads((out / "results.json").read_text())
+    assert results["estimators"] == ["dr", "rfid-ekf", "fusion-ekf"]
+    cells = {(c["fault"], c["estimator"]): c["seeds"][0] for c in results["cells"]}
+    applicable = [k for k, v in results["faults"].items() if isinstance(v, dict)]
+    assert set(cells) == {(f, e) for f in ["none", *applicable] for e in results["estimators"]}
+    blackout = cells[("rfid_blackout", "fusion-ekf")]
+    assert blackout["during_rms_m"] > 0 and blackout["recovery_threshold_m"] > blackout["baseline_rms_m"]
+    report = (out / "report.md").read_text()
+    assert "| rfid_blackout |" in report and (out / "fault_errors.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["nope"], "unknown scenario"),
+    (["paper-straight", "-e", "nope"], "unknown estimator"),
+    (["paper-straight", "--seeds", "0"], "--seeds"),
+    (["paper-straight", "--duration", "-3"], "--duration"),
+    (["paper-straight", "-o", "{file}"], "not a folder"),
+    (["paper-straight", "-o", "{missing}/deeper"], "does not exist"),
+])
+def test_fault_study_bad_options(tmp_path, capsys, argv, message):
+    from graphpos.cli import main
+
+    (tmp_path / "file").write_text("x")
+    argv = [a.format(file=tmp_path / "file", missing=tmp_path / "missing") for a in argv]
+    if "-o" not in argv:
+        argv += ["-o", str(tmp_path / "out")]
+    before = sorted(tmp_path.rglob("*"))
+    assert main(["fault-study", *argv, "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err
+    assert sorted(tmp_path.rglob("*")) == before
