@@ -7,6 +7,12 @@ use it, and all runs go to the executor together. Each table cell is the mean
 ``results.json``; one where the estimator refuses the drive for a missing
 channel shows ``n/a``.
 
+Beside the tables: a summary (the papers' most accurate filter against each
+factor graph, per table), the speed error of song2016 Fig. 16, and the
+late-measurement and fault studies (:data:`DEGRADED`) on the straight test.
+``--quick`` runs 2 seeds, two of the seven Table 4 patterns, one seed of the
+degraded-data studies and the first 180 s of Plaza.
+
 Real data: when the Plaza file is present, the estimators that can use its
 sensors (UWB ranges, wheel odometry, gyro; no accelerometers, no compass) run
 on it. The ranging is not calibrated on the evaluated drive's truth: Plaza1
