@@ -157,6 +157,7 @@ class GraphBuilder:
         # history for batch solves / scale estimation
         self.fixed_factors = gtsam.NonlinearFactorGraph()
         self.range_records: list[RangeRecord] = []
+        self.landmark_positions: dict[int, np.ndarray] = {}
         self.diagnostics = {"late_attached": 0, "late_dropped": 0, "ranges": 0, "anchor_keyframe": None}
 
     # -- time grid ----------------------------------------------------------
@@ -367,6 +368,8 @@ class GraphBuilder:
             inc.values.insert(key, point)
             if not self.anchored:
                 self._backlog_landmarks[key] = point
+            if self.keep_history:
+                self.landmark_positions[key] = np.array([e, n])
         self._landmarks[which] = (key, t_k)
         inc.timestamps[key] = t_k
         return key

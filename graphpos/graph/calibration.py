@@ -54,3 +54,34 @@ def estimate_range_scale(builder, initial: gtsam.Values, config: GraphConfig, wh
     best = min(solved, key=lambda s: solved[s][0])
     builder.diagnostics["range_scale_solves"] = int(result.nfev)
     return float(best), solved[best][1]
+
+
+def calibrate_range_scale(drive, config: GraphConfig | None = None, layout: str | None = None):
+    """Self-calibrate a range-reporting radio on a drive, without its truth.
+
+    Runs ``graph-batch`` with ``range_scale="estimate"`` and returns a
+    :class:`~graphpos.ranging.model.LinearCalibration` with the estimated
+    scale and, as its sigma, the robust spread (1.4826 x median absolute
+    deviation) of the calibrated ranges about the smoothed trajectory. The
+    online estimators then use it as their range model (calibrate once, run
+    causally), e.g. ``GraphIsam2(range_model=calibrate_range_scale(drive))``.
+    """
+    import dataclasses
+
+    import numpy as np
+
+    from graphpos.graph.estimators import GraphBatch
+    from graphpos.ranging.model import LinearCalibration
+
+    config = dataclasses.replace(config or GraphConfig(), range_scale="estimate", output_covariance=False)
+    est = GraphBatch(config, layout=layout, range_model=LinearCalibration())
+    result = est.run(drive)
+    builder = est.builder
+    scale = builder.range_scale
+    times = np.array([builder.keyframe_time(r.keyframe) for r in builder.range_records])
+    reading = np.array([r.reading_m for r in builder.range_records])
+    positions = np.column_stack([np.interp(times, result.t_s, result.east_m), np.interp(times, result.t_s, result.north_m)])
+    marks = np.array([builder.landmark_positions[r.landmark_key] for r in builder.range_records])
+    residual = reading / scale - np.linalg.norm(positions - marks, axis=1)
+    sigma = 1.4826 * float(np.median(np.abs(residual - np.median(residual))))
+    return LinearCalibration(scale=scale, offset_m=0.0, sigma0_m=max(sigma, 0.05))

@@ -39,7 +39,8 @@ class GraphConfig:
         Per-sample 1-sigma of the accelerometers and the yaw gyro at
         ``imu_rate_hz`` (song2016 §6: 0.1 m/s^2, 0.2 deg/s).
     imu_rate_hz : float
-        Nominal IMU rate, to turn per-sample sigmas into noise densities.
+        IMU rate, to turn per-sample sigmas into noise densities; replaced
+        by the rate measured on the drive when it has IMU samples.
     accel_bias_sigma_mps2, gyro_bias_sigma_radps : float
         Prior 1-sigma of the turn-on biases.
     accel_bias_walk_mps2_per_sqrt_s, gyro_bias_walk_radps_per_sqrt_s : float
@@ -47,7 +48,8 @@ class GraphConfig:
     wheel_speed_sigma_mps : float
         Per-sample 1-sigma of the wheel speed (no figure in the papers).
     wheel_rate_hz : float
-        Nominal wheel-speed rate (per-sample sigma -> density).
+        Wheel-speed rate (per-sample sigma -> density); replaced by the
+        drive's measured rate like ``imu_rate_hz``.
     lateral_slip_sigma_mps : float
         1-sigma of the body's lateral (and vertical) velocity: the
         non-holonomic constraint of the wheel odometry factor.

@@ -18,6 +18,7 @@ measurement in arrival order + ``finish``.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any
 
@@ -77,6 +78,7 @@ class _GraphEstimator(Estimator):
         model_range = self.range_model
         if model_range is None and drive.has("rfid"):
             model_range = default_range_model_for(drive)
+        self.config = _with_drive_rates(self.config, drive)
         self.model = make_model(self.config, drive.has_accelerometers)
         if self.model.name == "inertial" and not drive.has_accelerometers:
             raise MissingChannelError(f"{self.name}: the inertial graph needs accelerometers; drive '{drive.name}' has none (use parameterisation='planar')")
@@ -153,6 +155,21 @@ class _GraphEstimator(Estimator):
             "range_scale": self.builder.range_scale,
         }
         return Estimate.from_rows(self.name, rows, rate_hz=self.config.keyframe_rate_hz, diagnostics=diagnostics)
+
+
+def _with_drive_rates(config: GraphConfig, drive: Drive) -> GraphConfig:
+    """The config with ``imu_rate_hz`` / ``wheel_rate_hz`` measured from the drive.
+
+    Sensor sigmas are per sample; their noise densities need the real
+    sample rate (the Plaza odometry runs at 5 Hz, the simulator at 100 Hz).
+    """
+    rates = {}
+    for channel, field_name in (("imu", "imu_rate_hz"), ("wheel", "wheel_rate_hz")):
+        if drive.has(channel) and len(drive.channels[channel]) > 2:
+            dt = float(np.median(np.diff(drive.channels[channel].t_s)))
+            if dt > 0:
+                rates[field_name] = 1.0 / dt
+    return dataclasses.replace(config, **rates) if rates else config
 
 
 def _output_row(t_s: float, state: KeyframeState, cov: np.ndarray | None) -> OutputRow:

@@ -1,0 +1,44 @@
+"""Range-scale self-calibration (no truth used by the estimators) and Plaza1 accuracy."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import position_errors, synthetic_drive
+
+from graphpos.graph import ESTIMATORS
+from graphpos.graph.calibration import calibrate_range_scale
+from graphpos.graph.config import GraphConfig
+from graphpos.ranging.model import LinearCalibration
+
+
+def rms(errors: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(errors**2)))
+
+
+def test_scale_recovered_on_a_long_reading_radio():
+    drive = synthetic_drive(40, seed=13, turn_radps=0.05, range_scale=1.07)
+    model = calibrate_range_scale(drive, GraphConfig(parameterisation="planar"))
+    assert model.scale == pytest.approx(1.07, abs=0.01)
+    assert 0.15 < model.sigma0_m < 0.5  # the simulated 0.3 m
+    plain = ESTIMATORS["graph-isam2"](GraphConfig(parameterisation="planar"), range_model=LinearCalibration(sigma0_m=0.3)).run(drive)
+    calibrated = ESTIMATORS["graph-isam2"](GraphConfig(parameterisation="planar"), range_model=model).run(drive)
+    assert rms(position_errors(drive, calibrated)) < 0.7 * rms(position_errors(drive, plain))
+
+
+@pytest.mark.slow
+def test_plaza1_accuracy_with_self_calibrated_scale(plaza_path):
+    """Plaza1: graph-batch RMS <= 0.40 m, graph-isam2 causal <= 0.55 m.
+
+    The range scale is estimated by the batch smoother from the drive itself
+    (truth is used only to score, and for the start pose as for the filters).
+    """
+    from graphpos.io.plaza import import_plaza
+
+    drive = import_plaza(plaza_path)
+    batch = ESTIMATORS["graph-batch"](GraphConfig(range_scale="estimate", output_covariance=False), range_model=LinearCalibration()).run(drive)
+    assert batch.diagnostics["range_scale"] == pytest.approx(1.069, abs=0.01)
+    assert rms(position_errors(drive, batch)) <= 0.40
+    model = calibrate_range_scale(drive)
+    causal = ESTIMATORS["graph-isam2"](GraphConfig(output_covariance=False), range_model=model).run(drive)
+    assert rms(position_errors(drive, causal)) <= 0.55
