@@ -239,13 +239,13 @@ class Channel:
                 frac = finite & (arr != np.round(arr))
                 if frac.any():
                     row = int(np.argmax(frac))
-                    raise DriveError(self.kind, row, f"{spec.name} = {arr[row]!r} is not a whole number")
+                    raise DriveError(self.kind, row, f"{spec.name} = {float(arr[row])!r} is not a whole number")
         t = self._columns["t_s"]
         if t.size > 1:
             back = np.diff(t) < 0
             if back.any():
                 row = int(np.argmax(back)) + 1
-                raise DriveError(self.kind, row, f"time goes backwards ({t[row - 1]!r} -> {t[row]!r})")
+                raise DriveError(self.kind, row, f"time goes backwards ({float(t[row - 1])!r} -> {float(t[row])!r})")
         if "arrival_s" in self._columns:
             early = self._columns["arrival_s"] < t
             if early.any():
