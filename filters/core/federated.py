@@ -6,14 +6,15 @@ the FUKF (song2016) and reusable by any federated design (liu2016).
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
 
-from filters.models.angles import angle_residual, wrap_angle
+from filters.models.angles import wrap_angle
 
 
-def share_information(P_g: np.ndarray, Q: np.ndarray, beta: Sequence[float]) -> list[tuple[np.ndarray, np.ndarray]]:
+def share_information(P_g: np.ndarray, Q: np.ndarray, beta: Sequence[float]) -> list[tuple[np.ndarray, np.ndarray] | None]:
     """Information sharing, song2016 eq. 34-35.
 
     ``P_j = P_g / beta_j``, ``Q_j = Q / beta_j`` for each filter with
@@ -24,9 +25,9 @@ def share_information(P_g: np.ndarray, Q: np.ndarray, beta: Sequence[float]) -> 
     -------
     list of (P_j, Q_j), one per beta (None for a zero beta).
     """
-    beta = np.asarray(beta, dtype=np.float64)
-    if np.any(beta < 0) or not np.isclose(beta.sum(), 1.0):
-        raise ValueError(f"information-sharing coefficients must be >= 0 and sum to 1, got {beta.tolist()}")
+    beta = [float(b) for b in beta]
+    if min(beta) < 0 or not math.isclose(sum(beta), 1.0, rel_tol=1e-9, abs_tol=1e-9):
+        raise ValueError(f"information-sharing coefficients must be >= 0 and sum to 1, got {beta}")
     return [(P_g / b, Q / b) if b > 0 else None for b in beta]
 
 
@@ -35,27 +36,29 @@ def fuse(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Master fusion, song2016 eq. 36-37.
 
-    ``P_g = (sum P_j^-1)^-1``, ``x_g = P_g sum P_j^-1 x_j``. Angles are
-    fused as residuals about the first estimate (so ``+pi`` and ``-pi``
-    average to ``pi``, not 0), then wrapped.
+    ``P_g = (sum P_j^-1)^-1``, ``x_g = P_g sum P_j^-1 x_j``, computed by
+    folding the estimates in one at a time with the equivalent two-estimate
+    form ``K = P_a (P_a + P_b)^-1``, ``x_ab = x_a + K (x_b - x_a)``,
+    ``P_ab = P_a - K P_a``: one linear solve per estimate instead of an
+    inverse of every ``P_j`` and of their information sum (cheaper, and no
+    inverse of a single, possibly ill-conditioned ``P_j``). Angle differences
+    are wrapped (so ``+pi`` and ``-pi`` average to ``pi``, not 0), and the
+    fused angles too.
 
     Parameters
     ----------
     estimates : sequence of (x_j, P_j)
     angle_states : sequence of int
     """
-    ref = np.asarray(estimates[0][0], dtype=np.float64)
-    info = np.zeros((ref.size, ref.size))
-    info_vec = np.zeros(ref.size)
-    for x, P in estimates:
-        d = np.asarray(x, dtype=np.float64) - ref
+    x_g = np.array(estimates[0][0], dtype=np.float64)
+    P_g = np.array(estimates[0][1], dtype=np.float64)
+    for x, P in estimates[1:]:
+        d = np.asarray(x, dtype=np.float64) - x_g
         for i in angle_states:
-            d[i] = angle_residual(float(x[i]), float(ref[i]))
-        Y = np.linalg.inv(P)
-        info += Y
-        info_vec += Y @ d
-    P_g = np.linalg.inv(info)
-    x_g = ref + P_g @ info_vec
+            d[i] = wrap_angle(float(d[i]))
+        K = np.linalg.solve(P_g + P, P_g).T  # P_g (P_g + P)^-1, both symmetric
+        x_g = x_g + K @ d
+        P_g = P_g - K @ P_g
     for i in angle_states:
         x_g[i] = wrap_angle(float(x_g[i]))
     return x_g, 0.5 * (P_g + P_g.T)

@@ -110,29 +110,75 @@ class UnscentedKalmanFilter:
 
     def predict(self, fx: Callable[[np.ndarray], np.ndarray], Q: np.ndarray) -> None:
         """Time update: propagate the sigma points through ``fx`` (vectorised over rows)."""
-        pts = fx(self.points.sigma_points(self.x, self.P))
-        x = _mean(pts, self.points.Wm, self.angle_states)
-        d = _deviations(pts, x, self.angle_states)
+        self.predict_points(fx(self.points.sigma_points(self.x, self.P)), Q)
+
+    def predict_points(self, points: np.ndarray, Q: np.ndarray) -> np.ndarray:
+        """Time update from sigma points of the current estimate, already propagated.
+
+        Parameters
+        ----------
+        points : (2n+1, n)
+            ``self.points.sigma_points(self.x, self.P)`` after the process model.
+        Q : (n, n)
+            Process noise, added to the propagated spread.
+
+        Returns
+        -------
+        (2n+1, n)
+            The points' deviations from the new mean (angles wrapped): the
+            ``dx`` of :meth:`update_points` when the same points also give a
+            measurement prediction.
+        """
+        x = _mean(points, self.points.Wm, self.angle_states)
+        d = _deviations(points, x, self.angle_states)
         self.P = d.T @ (self.points.Wc[:, None] * d) + Q
         for i in self.angle_states:
             x[i] = wrap_angle(float(x[i]))
         self.x = x
+        return d
 
-    def update(
-        self,
-        z: np.ndarray,
-        hx: Callable[[np.ndarray], np.ndarray],
-        R: np.ndarray,
-        angle_measurements: Sequence[int] = (),
-        gate_probability: float = 1.0,
-    ) -> tuple[float, np.ndarray]:
-        """Measurement update.
+    def update(self, z: np.ndarray, hx: Callable[[np.ndarray], np.ndarray], R: np.ndarray,
+               angle_measurements: Sequence[int] = (), gate_probability: float = 1.0) -> tuple[float, np.ndarray]:
+        """Measurement update with sigma points drawn from the current estimate.
 
         Parameters
         ----------
         z : (m,) measurement
         hx : callable
             ``(k, n) -> (k, m)`` measurement function over sigma points.
+        R, angle_measurements, gate_probability
+            As in :meth:`update_points`.
+
+        Returns
+        -------
+        nis : float
+        accepted : (m,) bool
+            As in :meth:`update_points`.
+        """
+        sig = self.points.sigma_points(self.x, self.P)
+        Z = hx(sig).reshape(sig.shape[0], -1)
+        dx = _deviations(sig, self.x, self.angle_states)
+        return self.update_points(z, Z, dx, R, angle_measurements, gate_probability)
+
+    def update_points(
+        self,
+        z: np.ndarray,
+        Z: np.ndarray,
+        dx: np.ndarray,
+        R: np.ndarray,
+        angle_measurements: Sequence[int] = (),
+        gate_probability: float = 1.0,
+    ) -> tuple[float, np.ndarray]:
+        """Measurement update from a measurement predicted on given sigma points.
+
+        Parameters
+        ----------
+        z : (m,) measurement
+        Z : (2n+1, m)
+            The measurement function on each sigma point.
+        dx : (2n+1, n)
+            Those sigma points' state deviations from ``self.x`` (they give
+            ``P_xz = sum Wc dx dz^T``).
         R : (m,) or (m, m)
             Measurement covariance (a vector is its diagonal).
         angle_measurements : sequence of int
@@ -147,9 +193,7 @@ class UnscentedKalmanFilter:
             Normalised innovation squared of the applied rows (0 if none).
         accepted : (m,) bool
         """
-        sig = self.points.sigma_points(self.x, self.P)
         Wm, Wc = self.points.Wm, self.points.Wc
-        Z = hx(sig).reshape(sig.shape[0], -1)
         z = np.atleast_1d(np.asarray(z, dtype=np.float64))
         z_mean = _mean(Z, Wm, angle_measurements)
         dz = _deviations(Z, z_mean, angle_measurements)
@@ -170,7 +214,6 @@ class UnscentedKalmanFilter:
                 Pzz = Pzz[np.ix_(accepted, accepted)]
         else:
             accepted = np.ones(nu.shape[0], dtype=bool)
-        dx = _deviations(sig, self.x, self.angle_states)
         Pxz = dx.T @ (Wc[:, None] * dz)
         Pzz_inv = _inverse(Pzz)
         K = Pxz @ Pzz_inv

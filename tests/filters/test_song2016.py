@@ -5,7 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from filters.song2016 import ESTIMATORS, multilaterate
+from filters.song2016 import ESTIMATORS, _propagate, _propagate_steps, multilaterate
 from graphpos.drive import Channel
 from graphpos.errors import MissingChannelError
 from graphpos.estimator import Estimator
@@ -125,6 +125,21 @@ def test_without_accelerometers_and_compass(small_drive):
         est = ESTIMATORS[name](range_model=RANGES).run(drive)
         assert np.isfinite(est.east_m).all()
         assert rms(position_errors(drive, est)) < (3.0 if name == "dr" else 1.0), name
+
+
+@pytest.mark.parametrize("accel", ["all", "none", "mixed", "no steps"])
+def test_interval_propagation_equals_step_by_step(accel):
+    """The FUKF's closed-form pass over an interval's IMU steps is eq. 16
+    (or the no-accelerometer fallback) applied step by step."""
+    rng = np.random.default_rng(4)
+    n_steps = 0 if accel == "no steps" else 12
+    has_accel = {"all": np.ones(n_steps, bool), "none": np.zeros(n_steps, bool)}.get(accel, np.arange(n_steps) % 3 > 0)
+    x = rng.normal(size=(7, 5)) * [10, 10, 3, 3, 3]
+    dt, u = rng.uniform(0.005, 0.02, n_steps), rng.normal(size=(n_steps, 3))
+    ref = [x]
+    for j in range(n_steps):
+        ref.append(_propagate(ref[-1], dt[j], u[j], bool(has_accel[j]), False)[0])
+    np.testing.assert_allclose(_propagate_steps(x, dt, u, has_accel), np.stack(ref, axis=1), atol=1e-12)
 
 
 def test_multilateration_solves_eq38_exactly():
