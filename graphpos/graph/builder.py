@@ -59,6 +59,7 @@ class Increment:
     values: gtsam.Values = field(default_factory=gtsam.Values)
     timestamps: dict[int, float] = field(default_factory=dict)
     released: list[int] = field(default_factory=list)  # keyframes entering the smoother now
+    anchoring: bool = False  # first information of the trajectory: iterate more
 
 
 @dataclass
@@ -272,6 +273,7 @@ class GraphBuilder:
                 if e[0] == "compass" and self._first_yaw is None:
                     self._first_yaw = e[1]
             state = self._initial_state()
+            inc.anchoring = self.anchored
             if self.anchored:
                 c = self.config
                 self._add(inc, self.model.prior_factors(0, state, c.initial_position_sigma_m, c.initial_yaw_sigma_rad))
@@ -435,7 +437,7 @@ class GraphBuilder:
         at once, and marginalising a long, weakly anchored dead-reckoned
         track is numerically indeterminate.
         """
-        merged = Increment(last.keyframe if last else self.last_keyframe, last.t_s if last else 0.0)
+        merged = Increment(last.keyframe if last else self.last_keyframe, last.t_s if last else 0.0, anchoring=True)
         window = [inc for inc in self._backlog if inc.t_s >= merged.t_s - self.release_window_s] or self._backlog[-1:]
         allowed = set(self._backlog_landmarks)
         for inc in window:
