@@ -116,7 +116,7 @@ def _rates(dr: np.ndarray, path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarr
     dt = np.diff(t_end)
     if not np.all(dt > 0):
         row = int(np.argmax(~(dt > 0))) + 1
-        raise FileFormatError(f"{path}: array 'DR' row {row}: time {t_end[row]!r} does not increase")
+        raise FileFormatError(f"{path}: array 'DR' row {row}: time {float(t_end[row])!r} does not increase")
     dt = np.r_[dt[0], dt]
     turn = np.remainder(dr[:, 2] + np.pi, 2 * np.pi) - np.pi  # an increment of a wrapped heading
     return t_end - dt / 2, dr[:, 1] / dt, turn / dt
@@ -126,7 +126,7 @@ def _truth(gt: np.ndarray, path: Path) -> Channel:
     t = gt[:, 0]
     if not np.all(np.diff(t) > 0):
         row = int(np.argmax(~(np.diff(t) > 0))) + 1
-        raise FileFormatError(f"{path}: array 'GT' row {row}: time {t[row]!r} does not increase")
+        raise FileFormatError(f"{path}: array 'GT' row {row}: time {float(t[row])!r} does not increase")
     east, north = gt[:, 1], gt[:, 2]
     n = t.size
     return Channel(
@@ -174,6 +174,12 @@ def import_plaza(path: str | os.PathLike, origin: GeoOrigin = PLAZA_ORIGIN) -> D
     """
     path = Path(path)
     arrays = _load(path)
+    for name in ("GT", "DR", "TD", "TL"):
+        # Every cell of a Plaza array is a value (a NaN range would pass as "no range" and fail later).
+        bad = ~np.isfinite(arrays[name])
+        if bad.any():
+            row, col = (int(i) for i in np.argwhere(bad)[0])
+            raise FileFormatError(f"{path}: array '{name}' row {row}, column {col}: {float(arrays[name][row, col])} is not a finite number")
     gt, dr, td, tl = arrays["GT"], arrays["DR"], arrays["TD"], arrays["TL"]
     order = np.argsort(td[:, 0], kind="stable")
     td = td[order]
@@ -185,10 +191,6 @@ def import_plaza(path: str | os.PathLike, origin: GeoOrigin = PLAZA_ORIGIN) -> D
         if not known.all():
             row = int(order[np.argmax(~known)])
             raise FileFormatError(f"{path}: array 'TD' row {row}: beacon {td[np.argmax(~known), 2]:g} is not in 'TL'")
-        bad_range = ~np.isfinite(td[:, 3])
-        if bad_range.any():  # a range column may hold NaN in other drives, but every Plaza row is a reading
-            row = int(order[np.argmax(bad_range)])
-            raise FileFormatError(f"{path}: array 'TD' row {row}: range {td[np.argmax(bad_range), 3]} is not a number")
         beacon_xy = tags.positions(td[:, 2].astype(np.int64))
         nan = np.full(len(td), np.nan)
         channels = {
