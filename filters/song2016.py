@@ -632,32 +632,35 @@ class Fukf(FilterEstimator):
     the scan -> ``beta_few_tags`` else ``beta_many_tags``; a fusion without a
     scan counts zero tags.
 
-    Processing between fusions (deviations from a UKF step per reading, both
-    for speed: 100 Hz of unscented transforms in numpy run at about 100x
-    real time, issue 4 asks for 200x):
+    Processing between fusions (deviations from a UKF step per IMU sample
+    and per reading, both for speed: 100 Hz of unscented transforms in numpy
+    ran at about 100x real time, issue 4 asks for 200x; this runs at about
+    400x):
 
     * **Prediction over a fusion interval in one unscented transform.** Each
-      local filter's sigma points are drawn once, at the last fusion, and
-      carried through every held IMU step since (eq. 16 applied step by
-      step, :func:`_propagate_steps`); the process noise of the whole
-      interval, ``Q(T) / beta_j`` (:func:`_process_noise`), is added at its
-      end. Drawing the points again after every 10 ms step, as a UKF
-      predicting at each IMU sample would, changes the transform only
-      through the model's nonlinearity in yaw over at most 0.1 s.
+      local filter's sigma points are drawn once, at the last fusion (both
+      filters are then at the fused state), and carried through every held
+      IMU step since — eq. 16 applied step by step, in closed form over the
+      steps (:func:`_propagate_steps`); the process noise of the whole
+      interval, ``Q(T) / beta_j`` (:func:`_process_noise`; the
+      no-accelerometer density if any step lacked them), is added at its
+      end. Drawing the points again after every 10 ms step changes the
+      transform only through the model's nonlinearity in yaw over at most
+      0.1 s.
     * **Local filter 2's readings of an interval in one update.** Its wheel
       speeds (with the zero-sideways pseudo-measurement when on) and compass
       yaws since the last fusion are stacked into one measurement vector,
-      each predicted from the sigma points at its own time, and applied in
-      one unscented update at the fusion (readings at the same step count
-      as before see the same state). For measurements linear in the state
-      this equals the sequential updates exactly; here it differs in that
-      the statistical linearisation of the yaw-dependent wheel measurement
-      is about the interval's prior rather than each reading's posterior,
-      and the interval's readings do not see the process noise accrued
-      between the fusion and their time (under 0.1 s of it: a few per cent
-      of the prior velocity and yaw variances). Both differences are small
-      beside the wheel's 1-sigma; the fused estimate is reported only at
-      the fusions, so no output is delayed.
+      each predicted from the sigma points carried to its own time stamp,
+      and applied in one unscented update at the fusion. For a linear model
+      and linear readings this is exactly the sequential updates (the tests
+      check it); here it differs in that the yaw-dependent wheel measurement
+      is linearised (statistically) about the interval's prior rather than
+      each reading's posterior, and a reading does not see the process
+      noise accrued between the fusion and its time (under 0.1 s of it: a
+      few per cent of the prior velocity and yaw variances). Measured on 30
+      simulated paper drives (all patterns, 3 seeds, optimised layout): mean
+      RMS 0.498 -> 0.500 m, mean NEES 0.915 -> 0.920. Outputs are produced
+      only at fusions, so none is delayed.
     """
 
     name = "fukf"
