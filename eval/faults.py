@@ -63,6 +63,7 @@ import json
 import math
 import time
 import traceback
+from concurrent.futures import as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -237,7 +238,6 @@ class FaultStudy:
     faults: dict[str, Any]
     #: (fault, estimator) -> one dict of figures per seed (or {"error": ...}).
     cells: dict[tuple[str, str], list[dict[str, Any]]] = field(default_factory=dict)
-    folder: Path | None = None
     wall_time_s: float = float("nan")
 
     @property
@@ -293,7 +293,8 @@ def fault_study(scenario: str = DEFAULT_SCENARIO, estimators: list[str] | None =
         futures = {pool.submit(run_one, fault_source(scenario, seed, duration_s, fault, specs.get(fault)), est): (seed, fault, est)
                    for seed, fault, est in jobs}
         with tqdm(total=len(futures), desc="fault-study", unit="run", disable=not progress, leave=False) as bar:
-            for fut, key in futures.items():
+            for fut in as_completed(futures):
+                key = futures[fut]
                 try:
                     runs[key] = fut.result()
                 except Exception as exc:  # the worker process died
@@ -399,7 +400,6 @@ def write_study(study: FaultStudy, folder: Path) -> Path:
     """Write ``results.json``, ``report.md``/``report.html`` and ``fault_errors.png`` into ``folder``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    study.folder = folder
     faults = ["none", *[f for f, s in study.faults.items() if isinstance(s, dict)]]
     report = Report(f"graphpos fault-study — {study.scenario}")
     sec = report.section("Position error during each fault and recovery after it")
@@ -428,6 +428,19 @@ def write_study(study: FaultStudy, folder: Path) -> Path:
     else:
         health.text("Every run kept its output rate, every covariance given stayed positive definite, "
                     "and no run raised.")
+    details = report.section("Details per fault and estimator")
+    details.text("Means over seeds (recovery: worst). 'after': from the fault's end to the end of the drive.")
+    rows = []
+    for f in faults[1:]:
+        for e in study.estimators:
+            cell = study.cells[(f, e)]
+            if all("error" in c for c in cell):
+                continue
+            rows.append([f, e] + [fmt(_mean(cell, key)) for key in
+                                  ("baseline_rms_m", "during_max_m", "during_rms_m", "after_max_m", "after_rms_m")]
+                        + [_recovery_cell(cell)])
+    details.table(["fault", "estimator", "fault-free RMS", "during max", "during RMS", "after max", "after RMS",
+                   "recovery [s]"], rows)
     placed = report.section("Where the faults were placed")
     placed.table(["fault", "spec (or why not applicable)"],
                  [[f, json.dumps(s) if isinstance(s, dict) else s] for f, s in study.faults.items()])
