@@ -13,6 +13,12 @@ import numpy as np
 from graphpos.errors import EstimationError
 
 
+#: iSAM2 wildfire threshold (tangent-space units).
+WILDFIRE_THRESHOLD = 0.01
+#: iSAM2 relinearisation period (updates).
+RELINEARIZE_SKIP = 10
+
+
 def isam2_params(model_name: str, find_unused_factor_slots: bool = False) -> gtsam.ISAM2Params:
     """iSAM2 with partial relinearisation checks and per-variable-type thresholds.
 
@@ -32,11 +38,14 @@ def isam2_params(model_name: str, find_unused_factor_slots: bool = False) -> gts
         thresholds.insert(("l", np.array([1.0, 1.0, 1.0])))
         thresholds.insert(("r", np.array([1.0, 1.0, 1.0])))
     params.setRelinearizeThreshold(thresholds)
-    # Full iSAM2 relinearises every 10th update (GTSAM's default): each tag
-    # scan moves the recent trajectory by more than the thresholds, and
-    # checking every update cost 2.5x the time for the same accuracy on a
-    # long-tunnel drive. The fixed-lag smoother's window is small: every update.
-    params.relinearizeSkip = 1 if find_unused_factor_slots else 10
+    # Back-substitution stops where an update changes a variable by less than
+    # this (m, rad, m/s); the newest keyframe, the causal output, is always
+    # updated. GTSAM's 0.001 sends each tag scan's correction far back.
+    params.setOptimizationParams(gtsam.ISAM2GaussNewtonParams(WILDFIRE_THRESHOLD))
+    # Relinearise every 10th update (GTSAM's default): each tag scan moves
+    # the recent trajectory by more than the thresholds, and checking every
+    # update cost 2.5x the time for the same accuracy on a long-tunnel drive.
+    params.relinearizeSkip = RELINEARIZE_SKIP
     params.enablePartialRelinearizationCheck = True
     params.findUnusedFactorSlots = find_unused_factor_slots
     return params
@@ -82,7 +91,9 @@ class FixedLagSmoother:
 
     def update(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: dict[int, float], extra_iterations: int = 0) -> None:
         self.smoother.update(factors, values, timestamps)
-        for _ in range(extra_iterations):
+        # the wrapper takes no ISAM2UpdateParams: force a relinearisation by
+        # running a full relinearisation period of empty updates
+        for _ in range(max(extra_iterations, RELINEARIZE_SKIP + 1) if extra_iterations else 0):
             self.smoother.update()
 
     def source(self):
