@@ -12,6 +12,12 @@ Prints, as ratios to real time:
     python benchmarks/graph.py [--scenario paper-straight] [--short 600] [--long 3600]
                                [--parameterisation auto|planar|inertial] [--skip-long]
     python benchmarks/graph.py --late-figure late.png [--seed 0]
+    python benchmarks/graph.py --accuracy [--seeds 5]
+
+``--accuracy`` prints the RMS position error of fusion-ekf, fukf,
+graph-isam2 (causal) and graph-batch on seeded paper-straight and
+paper-comprehensive drives with the optimized (16-tag) layout, and the
+graph/best-filter ratios (issue 6 targets: batch <= 0.6, iSAM2 <= 1.0).
 
 ``--late-figure`` instead compares, on a ``paper-straight`` drive whose RFID
 readings arrive 0.5-2 s late, graph-isam2 (late readings attached at their
@@ -114,6 +120,26 @@ def late_figure(path: str, seed: int) -> None:
     print(f"  figure: {path}")
 
 
+def accuracy(seeds: int) -> None:
+    """Graph vs the best song2016 filter on the papers' drives."""
+    from filters import ESTIMATORS as FILTERS
+
+    names = ("fusion-ekf", "fukf", "graph-isam2", "graph-batch")
+    for scenario in ("paper-straight", "paper-comprehensive"):
+        rms = {n: [] for n in names}
+        for seed in range(seeds):
+            drive = simulate(scenario, seed=seed)
+            tr = drive.truth
+            for n in names:
+                est = (FILTERS[n] if n in FILTERS else ESTIMATORS[n])(layout="optimized").run(drive)
+                err = np.hypot(est.east_m - np.interp(est.t_s, tr.t_s, tr.east_m), est.north_m - np.interp(est.t_s, tr.t_s, tr.north_m))
+                rms[n].append(float(np.sqrt(np.mean(err**2))))
+        mean = {n: float(np.mean(v)) for n, v in rms.items()}
+        best = min(mean["fusion-ekf"], mean["fukf"])
+        print(f"{scenario}, optimized layout, {seeds} seeds: mean RMS " + ", ".join(f"{n} {mean[n]:.3f} m" for n in names))
+        print(f"  graph-batch / best filter {mean['graph-batch'] / best:.2f} (target <= 0.6), graph-isam2 / best filter {mean['graph-isam2'] / best:.2f} (target <= 1.0)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="paper-straight")
@@ -123,7 +149,12 @@ def main() -> None:
     ap.add_argument("--parameterisation", default="auto", choices=("auto", "planar", "inertial"))
     ap.add_argument("--skip-long", action="store_true")
     ap.add_argument("--late-figure", metavar="PNG", help="plot the late-reading comparison instead")
+    ap.add_argument("--accuracy", action="store_true", help="compare with the song2016 filters instead")
+    ap.add_argument("--seeds", type=int, default=5)
     args = ap.parse_args()
+    if args.accuracy:
+        accuracy(args.seeds)
+        return
     if args.late_figure:
         late_figure(args.late_figure, args.seed)
         return

@@ -42,3 +42,21 @@ def test_plaza1_accuracy_with_self_calibrated_scale(plaza_path):
     model = calibrate_range_scale(drive)
     causal = ESTIMATORS["graph-isam2"](GraphConfig(output_covariance=False), range_model=model).run(drive)
     assert rms(position_errors(drive, causal)) <= 0.55
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("scenario", ["paper-straight", "paper-comprehensive"])
+def test_accuracy_against_the_best_song2016_filter(scenario):
+    """Issue 6 targets on the optimized layout: batch <= 0.6 x best filter, iSAM2 <= best filter."""
+    from filters import ESTIMATORS as FILTERS
+    from graphpos.sim import simulate
+
+    rms_of = {name: [] for name in ("fusion-ekf", "fukf", "graph-isam2", "graph-batch")}
+    for seed in range(5):
+        drive = simulate(scenario, seed=seed)
+        for name in rms_of:
+            cls = FILTERS[name] if name in FILTERS else ESTIMATORS[name]
+            rms_of[name].append(rms(position_errors(drive, cls(layout="optimized").run(drive))))
+    best = min(np.mean(rms_of["fusion-ekf"]), np.mean(rms_of["fukf"]))
+    assert np.mean(rms_of["graph-isam2"]) <= best
+    assert np.mean(rms_of["graph-batch"]) <= 0.6 * best
