@@ -1,4 +1,17 @@
-"""GTSAM factor-graph estimators, by name (merged into :mod:`graphpos.registry`)."""
+"""GTSAM factor-graph estimators, by name (merged into :mod:`graphpos.registry`).
+
+- ``graph-batch``: Levenberg–Marquardt over the whole drive with marginal
+  covariances (``GraphConfig(range_scale="estimate")`` self-calibrates a
+  common range scale);
+- ``graph-isam2``: online iSAM2, causal output (``final=True``: smoothed);
+- ``graph-fixed-lag``: incremental fixed-lag smoother for long drives.
+
+All take a :class:`~graphpos.graph.config.GraphConfig`; the planar (Pose2)
+or inertial (Pose3 + velocity + IMU bias) graph is chosen by
+``parameterisation`` (``auto``: inertial when the drive has
+accelerometers). :func:`~graphpos.graph.calibration.calibrate_range_scale`
+turns a drive into a calibrated range model for the online estimators.
+"""
 
 from graphpos.estimator import Estimator
 from graphpos.graph.estimators import GraphBatch, GraphFixedLag, GraphIsam2

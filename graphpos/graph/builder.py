@@ -392,6 +392,7 @@ class GraphBuilder:
         if fixes:
             k, (_, e, n, _) = fixes[0]
             s = self.states[k]
+            self.diagnostics["anchor_keyframe"] = k
             return e - s.east_m, n - s.north_m
         self._pre_anchor_ranges.extend((k, e[1], e[2] / self.range_scale, e[3] / self.range_scale) for k, e in ready if e[0] == "range")
         if not self._pre_anchor_ranges:

@@ -128,3 +128,15 @@ def test_batch_nees_inside_95_band_small(parameterisation):
 def test_batch_nees_inside_95_band(parameterisation):
     anees, lo, hi = _anees("graph-batch", parameterisation, range(25), 40.0)
     assert lo <= anees <= hi, (anees, lo, hi)
+
+
+def test_rsu_and_gnss_drive_without_a_start_pose():
+    """RSU ranges/fixes and GNSS (urban-rsu-gnss): anchored by the first fix, sane error."""
+    from graphpos.sim import simulate
+
+    drive = simulate("urban-rsu-gnss", seed=0, duration_s=120.0)
+    for name in ("graph-isam2", "graph-batch"):
+        est = run(name, drive, initial_pose_from_reference=False)
+        assert est.diagnostics["anchor_keyframe"] is not None
+        assert np.all(np.isfinite(est.position))
+        assert rms(position_errors(drive, est)) < 3.5
