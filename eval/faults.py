@@ -43,7 +43,8 @@ time ``t >= end`` of the fault from which every output error stays below the
 threshold for at least ``RECOVERY_HOLD_S`` (5 s) -- or up to the end of the
 drive, if that comes first -- minus the
 fault's end. ``None`` (reported "never") when no such time exists; 0 when the
-error never left the band.
+error never left the band; no verdict ("–") when the drive ends less than
+``RECOVERY_HOLD_S`` after the fault.
 
 Health checks: ``rate_kept`` -- every position finite, epochs strictly
 increasing, and (fixed-rate estimators, finite ``rate_hz``) no gap longer than
@@ -208,8 +209,10 @@ def fault_figures(run: dict[str, Any], baseline: dict[str, Any], span: tuple[flo
     figs["max_step_during_m"] = float(steps.max()) if steps.size else float("nan")
     threshold = RECOVERY_FACTOR * base_rms + RECOVERY_MARGIN_M
     figs["recovery_threshold_m"] = threshold
-    figs["recovery_s"] = None if whole else recovery_time(t, err, hi, threshold)
-    figs["recovered"] = None if whole else figs["recovery_s"] is not None
+    # Too little drive left after the fault to tell: no verdict (as for whole-drive faults).
+    undecidable = whole or t.size == 0 or t[-1] - hi < RECOVERY_HOLD_S
+    figs["recovery_s"] = None if undecidable else recovery_time(t, err, hi, threshold)
+    figs["recovered"] = None if undecidable else figs["recovery_s"] is not None
     rate = run["rate_hz"]
     ot, bot = np.asarray(run["output_t_s"]), np.asarray(baseline["output_t_s"])
     kept = run["finite"] and run["increasing"]

@@ -36,15 +36,10 @@ FAST_SUBSET = ("dr", "rfid-ekf", "fusion-ekf", "imm-stekf", "fkf", "graph-isam2"
 SMOOTH_STEP_M = 0.5
 #: An estimator that uses ranges is back within its band this soon after the blackout ends.
 RECOVERY_MAX_S = 15.0
-#: Known bugs, for the lead (see the report): strict xfails.
-DUPLICATE_EPOCHS = pytest.mark.xfail(
-    strict=True, reason="rfid-ekf emits two outputs with the same epoch when a late scan is applied at the filter's "
-                        "current time (filters/song2016.py RfidEkf._on_scan appends a row at an existing t_s)")
 
 
 def _cases(estimators, faults):
-    return [pytest.param(e, f, marks=DUPLICATE_EPOCHS if (e, f) == ("rfid-ekf", "late_readings") else ())
-            for e in estimators for f in faults]
+    return [(e, f) for e in estimators for f in faults]
 
 
 @functools.lru_cache(maxsize=None)
