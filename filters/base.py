@@ -197,6 +197,18 @@ class FilterEstimator(Estimator):
         return t
 
     # -- RFID scans -------------------------------------------------------------
+    def _emit_scan_output(self, row: OutputRow) -> None:
+        """Record a per-scan output (RFID-only estimators).
+
+        A late piece of a scan is applied at the filter's current time, which
+        may be the epoch of the output just made: the refined output replaces
+        that one, so epochs stay strictly increasing.
+        """
+        if self._rows and self._rows[-1].t_s >= row.t_s:
+            self._rows[-1] = row
+        else:
+            self._rows.append(row)
+
     def _flush_scan(self) -> None:
         rows, self._pending = self._pending, []
         t_s, arrival_s = self._pending_key

@@ -337,7 +337,7 @@ class LmsFederated(FilterEstimator):
             self.diagnostics["scans_without_fix"] = self._positioner.scans_without_fix
             return
         self.diagnostics["ranges_used"] += fix.tags_used
-        self._rows.append(OutputRow(fix.t_s, fix.east_m, fix.north_m, cov_en_m2=fix.cov_en_m2))
+        self._emit_scan_output(OutputRow(fix.t_s, fix.east_m, fix.north_m, cov_en_m2=fix.cov_en_m2))
 
 
 ESTIMATORS = {LmsFederated.name: LmsFederated}

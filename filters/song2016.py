@@ -539,7 +539,7 @@ class RfidEkf(FilterEstimator):
         self.diagnostics["ranges_used"] += used
         self.diagnostics["ranges_gated"] += gated
         f = self._f
-        self._rows.append(OutputRow(t_s, float(f.x[0]), float(f.x[1]), cov_en_m2=f.P.copy()))
+        self._emit_scan_output(OutputRow(t_s, float(f.x[0]), float(f.x[1]), cov_en_m2=f.P.copy()))
 
 
 class Multilateration(FilterEstimator):
@@ -575,7 +575,7 @@ class Multilateration(FilterEstimator):
         info = H.T @ (H / (sigmas * sigmas)[:, None])
         cov = np.linalg.pinv(info)
         self.diagnostics["ranges_used"] += len(ranges)
-        self._rows.append(OutputRow(t_s, float(fix[0]), float(fix[1]), cov_en_m2=cov))
+        self._emit_scan_output(OutputRow(t_s, float(fix[0]), float(fix[1]), cov_en_m2=cov))
 
 
 def multilaterate(tags_en_m: np.ndarray, ranges_m: np.ndarray) -> np.ndarray | None:
