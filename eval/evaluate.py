@@ -22,7 +22,7 @@ from eval.execution import FileSource, Job, JobResult, describe_source, execute,
 from eval.metrics import WHOLE
 from eval.report import Report, Section, fmt, write_json
 from graphpos.drive import Drive
-from graphpos.errors import MissingChannelError
+from graphpos.errors import MissingChannelError, naming_file
 from graphpos.io import read_drive, write_drive
 from graphpos.io.exports import export_estimate, kml_text, write_atomically
 
@@ -154,8 +154,12 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
     mcap : bool
         Write the combined MCAP per drive.
     """
-    for _, drive in drives:
-        require_truth(drive)
+    for source, drive in drives:
+        if isinstance(source, FileSource):
+            with naming_file(source.path):
+                require_truth(drive)
+        else:
+            require_truth(drive)
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     jobs = [

@@ -198,15 +198,12 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
 
     started = time.perf_counter()
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     n_seeds = seeds if seeds is not None else (SEEDS_QUICK if quick else SEEDS_FULL)
     if n_seeds < 1:
         raise ConfigError(f"--seeds must be at least 1, got {n_seeds}")
     exps = [e for e in experiments()
             if not (quick and e.key.startswith("song2016-table4/") and e.pattern not in QUICK_TABLE4)]
     plaza_path = plaza if plaza is not None else default_plaza_path()
-    if plaza is not None and not plaza.is_file():
-        raise ConfigError(f"Plaza file {plaza} does not exist")
 
     runs = _Runs()
     sources: dict[str, list[SimSource]] = {}
@@ -224,7 +221,7 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
             for name, layout in DEGRADED_ESTIMATORS:
                 runs.add(src, name, layout)
     plaza_drive = None
-    if plaza_path.is_file():
+    if plaza is not None or plaza_path.is_file():  # a given file must import (clear errors)
         from graphpos.io.plaza import import_plaza
 
         plaza_drive = import_plaza(plaza_path)
@@ -233,6 +230,7 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
         for name in PLAZA_ESTIMATORS:
             runs.add(plaza_drive, name, None, keep=True)
 
+    folder.mkdir(parents=True, exist_ok=True)
     keys = list(runs.jobs)
     results = execute([runs.jobs[k] for k in keys], workers=workers, scheduler=scheduler, progress=progress,
                       desc="reproduce")

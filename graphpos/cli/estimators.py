@@ -19,7 +19,7 @@ import argparse
 import json
 from pathlib import Path
 
-from graphpos.errors import ConfigError, FileFormatError
+from graphpos.errors import ConfigError, FileFormatError, naming_file
 from graphpos.estimate import Estimate
 
 
@@ -88,11 +88,12 @@ def _run(args: argparse.Namespace) -> int:
     if args.out_dir.exists() and not args.out_dir.is_dir():
         raise FileFormatError(f"{args.out_dir}: exists and is not a folder")
     drive = read_drive(args.drive)
-    if args.layout:
-        drive.tags.layout(args.layout)  # a clear error for an unknown layout
     range_model = load_range_model(args.range_model) if args.range_model else None
     estimators = [make_estimator(n, layout=args.layout, range_model=range_model) for n in names]
-    estimates = [est.run(drive) for est in estimators]
+    with naming_file(args.drive):
+        if args.layout:
+            drive.tags.layout(args.layout)  # a clear error for an unknown layout
+        estimates = [est.run(drive) for est in estimators]
 
     outputs: dict[str, str] = {f"{e.name}.csv": csv_text(e) for e in estimates}
     if drive.has("truth"):

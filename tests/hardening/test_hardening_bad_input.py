@@ -239,19 +239,11 @@ def test_drive_corpus(capsys, tmp_path, samples, case, command):
         assert outcome == "error"
 
 
-NAMES_THE_DRIVE_NOT_THE_FILE = pytest.mark.xfail(
-    strict=True, reason="the refusal names the drive, not the file: wrap the use of the drive in "
-                        "graphpos.errors.naming_file(path) (run: graphpos/cli/estimators.py around est.run; "
-                        "evaluate: eval/evaluate.py file_sources/evaluate around require_truth)")
-
-
 @pytest.mark.parametrize("command, argv, case", [
-    pytest.param("run", ["run", "{file}", "-e", "dr", "--out-dir", "{out}/run"], "no-truth",
-                 marks=NAMES_THE_DRIVE_NOT_THE_FILE, id="run-dr-no-truth"),
+    pytest.param("run", ["run", "{file}", "-e", "dr", "--out-dir", "{out}/run"], "no-truth", id="run-dr-no-truth"),
     pytest.param("run", ["run", "{file}", "-e", "fusion-ekf", "--out-dir", "{out}/run"], "one-second",
-                 marks=NAMES_THE_DRIVE_NOT_THE_FILE, id="run-fusion-ekf-one-second"),
-    pytest.param("evaluate", DRIVE_COMMANDS["evaluate"], "no-truth", marks=NAMES_THE_DRIVE_NOT_THE_FILE,
-                 id="evaluate-no-truth"),
+                 id="run-fusion-ekf-one-second"),
+    pytest.param("evaluate", DRIVE_COMMANDS["evaluate"], "no-truth", id="evaluate-no-truth"),
     pytest.param("ranging-fit", DRIVE_COMMANDS["ranging-fit"], "all-channels-empty", id="ranging-fit-empty"),
     pytest.param("ranging-fit", DRIVE_COMMANDS["ranging-fit"], "one-second", id="ranging-fit-one-second"),
 ])
@@ -315,14 +307,9 @@ def _mat_edit(path: Path, array: str, index: tuple[int, int], value: float) -> P
 MAT_CASES = _mat_cases()
 
 
-LEAVES_ITS_FOLDER = pytest.mark.xfail(
-    strict=True, reason="reproduce creates the output folder before reading --plaza, so a bad file leaves an "
-                        "empty folder behind (eval/reproduce.py reproduce(): move folder.mkdir after the Plaza "
-                        "import, or import the Plaza file first)")
-
 
 @pytest.mark.parametrize("command", [pytest.param("import-plaza"),
-                                     pytest.param("reproduce-plaza", marks=LEAVES_ITS_FOLDER)])
+                                     pytest.param("reproduce-plaza")])
 @pytest.mark.parametrize("case", list(MAT_CASES))
 def test_mat_corpus(capsys, tmp_path, samples, case, command):
     build, names = MAT_CASES[case]
