@@ -135,6 +135,7 @@ class GraphBuilder:
             yaw_rate_density=c.gyro_sigma_radps / math.sqrt(c.imu_rate_hz),
             slip_density=c.lateral_slip_sigma_mps / math.sqrt(c.wheel_rate_hz),
             heading_drift_sigma_radps=c.heading_drift_sigma_radps,
+            speed_scale_density=c.wheel_scale_density_per_sqrt_s,
             has_speed=drive.has("wheel"),
             has_yaw_rate=drive.has("imu"),
         )
@@ -217,7 +218,7 @@ class GraphBuilder:
             d, s = self.range_model.ranges(reading)
             if not (np.isfinite(d[0]) and np.isfinite(s[0]) and s[0] > 0):
                 return
-            entry = ("range", ("tag", int(v["tag_id"])), float(d[0]), float(s[0]))
+            entry = ("range", ("tag", int(v["tag_id"])), float(d[0]), float(s[0]) * self.config.range_sigma_scale)
         elif ch == "rsu":
             rid = int(v["rsu_id"])
             if np.isfinite(v.get("range_m", np.nan)):

@@ -35,6 +35,11 @@ class GraphConfig:
         M-estimator on range, RSU and GNSS factors.
     robust_k : float
         The M-estimator's threshold, in units of the measurement's sigma.
+    range_sigma_scale : float
+        Factor on the range model's 1-sigma of every tag range. A tag's
+        RSS shadowing is persistent, so its readings' errors repeat; as
+        independent factors they would count several times (song2016's
+        filters use the same kind of factor, ``range_sigma_scale``).
     accel_sigma_mps2, gyro_sigma_radps : float
         Per-sample 1-sigma of the accelerometers and the yaw gyro at
         ``imu_rate_hz`` (song2016 §6: 0.1 m/s^2, 0.2 deg/s).
@@ -47,6 +52,10 @@ class GraphConfig:
         Bias random walks (inertial graph).
     wheel_speed_sigma_mps : float
         Per-sample 1-sigma of the wheel speed (no figure in the papers).
+    wheel_scale_density_per_sqrt_s : float
+        Relative wheel-speed error density (1/sqrt(s)) for the wheel's
+        scale error: along-track variance grows by ``(density * v)^2`` per
+        second, whatever the wheel rate (see :class:`~graphpos.graph.odometry.PlanarOdometry`).
     wheel_rate_hz : float
         Wheel-speed rate (per-sample sigma -> density); replaced by the
         drive's measured rate like ``imu_rate_hz``.
@@ -93,6 +102,7 @@ class GraphConfig:
     parameterisation: str = "auto"
     robust_loss: str = "huber"
     robust_k: float = 1.345
+    range_sigma_scale: float = 1.0
     accel_sigma_mps2: float = 0.1
     gyro_sigma_radps: float = math.radians(0.2)
     imu_rate_hz: float = 100.0
@@ -101,6 +111,7 @@ class GraphConfig:
     accel_bias_walk_mps2_per_sqrt_s: float = 1e-2
     gyro_bias_walk_radps_per_sqrt_s: float = 1e-3
     wheel_speed_sigma_mps: float = 0.1
+    wheel_scale_density_per_sqrt_s: float = 0.1
     wheel_rate_hz: float = 100.0
     lateral_slip_sigma_mps: float = 0.05
     heading_drift_sigma_radps: float = math.radians(0.1)

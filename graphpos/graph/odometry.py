@@ -49,6 +49,13 @@ class PlanarOdometry:
         Lateral body-velocity density, m/s * sqrt(s).
     heading_drift_sigma_radps : float
         Extra heading variance growth (rad/s)^2 * s per interval second.
+    speed_scale_density : float
+        Density of a white relative speed error, 1/sqrt(s): adds
+        ``(density * v)^2`` (m/s)^2 * s to the speed's variance growth. It
+        stands for the wheel's scale error (about 1 %, constant over a
+        drive), which white per-sample noise cannot cover: its along-track
+        drift grows with the distance driven, not with the sample count,
+        so this term is the same at any wheel rate (Plaza 5 Hz, sim 100 Hz).
     has_speed, has_yaw_rate : bool
         Whether the drive gives wheel speed / yaw rate. Without wheel speed
         the speed is unknown (held at 0 with a large sigma); without a gyro
@@ -65,6 +72,7 @@ class PlanarOdometry:
         yaw_rate_density: float,
         slip_density: float,
         heading_drift_sigma_radps: float,
+        speed_scale_density: float = 0.0,
         has_speed: bool = True,
         has_yaw_rate: bool = True,
     ):
@@ -72,6 +80,7 @@ class PlanarOdometry:
         self.yaw_rate_var = yaw_rate_density**2
         self.slip_var = slip_density**2
         self.drift_var = heading_drift_sigma_radps**2
+        self.scale_var = speed_scale_density**2
         self.has_speed = has_speed
         self.has_yaw_rate = has_yaw_rate
         self.speed_mps = 0.0
@@ -112,12 +121,12 @@ class PlanarOdometry:
         v = np.asarray(self._v)
         w = np.asarray(self._w)
         self._dt, self._v, self._w = [], [], []
-        return integrate(dt, v, w, self._variances(dt))
+        return integrate(dt, v, w, self._variances(dt, v))
 
-    def _variances(self, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _variances(self, dt: np.ndarray, speed_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-segment variances of (speed, yaw rate, lateral speed), white noise held over dt."""
         safe = np.maximum(dt, 1e-9)
-        sv = self.speed_var / safe if self.has_speed else np.full(dt.shape, self.UNMEASURED_SPEED_SIGMA_MPS**2)
+        sv = (self.speed_var + self.scale_var * speed_mps**2) / safe if self.has_speed else np.full(dt.shape, self.UNMEASURED_SPEED_SIGMA_MPS**2)
         sw = self.yaw_rate_var / safe if self.has_yaw_rate else np.full(dt.shape, self.UNMEASURED_YAW_RATE_SIGMA_RADPS**2)
         return sv, sw + self.drift_var, self.slip_var / safe
 

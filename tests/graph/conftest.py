@@ -13,6 +13,8 @@ from graphpos.ranging.model import LinearCalibration
 PLAZA = Path(__file__).resolve().parents[2] / "../shared/data/plaza/Plaza1.mat"
 
 RANGE_SIGMA_M = 0.3
+#: The synthetic wheel has no scale error: graph configs that say so.
+EXACT_WHEEL = {"wheel_scale_density_per_sqrt_s": 1e-3}
 
 
 def synthetic_drive(

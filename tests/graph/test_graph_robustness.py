@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import position_errors, range_model, synthetic_drive, truth_at
+from conftest import EXACT_WHEEL, position_errors, range_model, synthetic_drive, truth_at
 from scipy import stats
 
 from graphpos.drive import Drive
@@ -16,7 +16,7 @@ PARAMETERISATIONS = ("planar", "inertial")
 
 
 def run(name: str, drive: Drive, **config):
-    return ESTIMATORS[name](GraphConfig(**config), range_model=range_model()).run(drive)
+    return ESTIMATORS[name](GraphConfig(**{**EXACT_WHEEL, **config}), range_model=range_model()).run(drive)
 
 
 def rms(errors: np.ndarray) -> float:
