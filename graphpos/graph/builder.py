@@ -32,7 +32,7 @@ from scipy.optimize import least_squares
 from graphpos.drive import Channel, Drive, Measurement
 from graphpos.graph.config import GraphConfig
 from graphpos.graph.models import KeyframeState, robust
-from graphpos.graph.odometry import PlanarOdometry
+from graphpos.graph.odometry import OdometryDelta, PlanarOdometry
 
 #: 1-sigma of the first keyframe's position prior once anchored by ranges
 #: or fixes: weak, only there to keep the system determinate.
@@ -159,6 +159,8 @@ class GraphBuilder:
         # history for batch solves / scale estimation
         self.fixed_factors = gtsam.NonlinearFactorGraph()
         self.range_records: list[RangeRecord] = []
+        self.odometry_records: list[tuple[int, OdometryDelta]] = []
+        self.wheel_scale: float | None = None  # None: wheel factors as built online
         self.landmark_positions: dict[int, np.ndarray] = {}
         self.diagnostics = {"late_attached": 0, "late_dropped": 0, "ranges": 0, "anchor_keyframe": None}
 
@@ -280,7 +282,11 @@ class GraphBuilder:
                 self._add(inc, self.model.prior_factors(0, state, c.initial_position_sigma_m, c.initial_yaw_sigma_rad))
         else:
             state = self.model.predict(self.states[k - 1], delta, self.pim)
-            self._add(inc, self.model.odometry_factors(k, delta, self.pim))
+            wheel, *others = self.model.odometry_factors(k, delta, self.pim)
+            inc.factors.add(wheel)
+            if self.keep_history:
+                self.odometry_records.append((k, delta))
+            self._add(inc, others)
         self.states[k] = state
         self.speeds[k] = delta.mean_speed_mps
         self.model.insert_values(inc.values, k, state)
@@ -350,12 +356,25 @@ class GraphBuilder:
         return self.model.range_factor(record.keyframe, record.landmark_key, record.reading_m / scale, noise)
 
     def graph(self, scale: float | None = None) -> gtsam.NonlinearFactorGraph:
-        """Every factor so far (``keep_history``), ranges built with ``scale``."""
+        """Every factor so far (``keep_history``): ranges built with ``scale``, wheel factors with :attr:`wheel_scale`."""
         scale = self.range_scale if scale is None else scale
         g = gtsam.NonlinearFactorGraph(self.fixed_factors)
         for r in self.range_records:
             g.add(self.range_factor(r, scale))
+        for k, delta in self.odometry_records:
+            g.add(self.model.wheel_factor(k, delta, self.wheel_scale))
         return g
+
+    def fit_wheel_scale(self, values: gtsam.Values) -> float:
+        """Wheel scale (``reading = scale * true``) fitting the wheel deltas to a solved trajectory.
+
+        Least squares of ``measured = scale * solved`` over the keyframe
+        translations (body frame); the solved trajectory must come from a
+        graph whose wheel factors allow for a scale error (the drift term).
+        """
+        measured = np.array([[d.dx_m, d.dy_m] for _, d in self.odometry_records])
+        solved = np.array([self.model.body_translation(values, k) for k, _ in self.odometry_records])
+        return float(np.sum(measured * solved) / max(np.sum(solved * solved), 1e-12))
 
     def _landmark_key(self, inc: Increment, which: tuple[str, int], k: int) -> int:
         t_k = inc.t_s

@@ -16,6 +16,7 @@ from graphpos.errors import ConfigError
 PARAMETERISATIONS = ("auto", "planar", "inertial")
 ROBUST_LOSSES = ("huber", "cauchy", "none")
 RANGE_SCALE_MODES = ("off", "estimate")
+WHEEL_SCALE_MODES = ("off", "estimate")
 
 
 @dataclass
@@ -94,6 +95,13 @@ class GraphConfig:
         (:mod:`graphpos.graph.calibration`).
     range_scale_bounds : tuple of float
         Search interval of the scale.
+    wheel_scale : {"off", "estimate"}
+        ``graph-batch`` only. ``estimate``: self-calibrate the wheel's
+        scale error (``reading = scale * speed``) from the drive: solve with
+        the drift term, fit the scale, solve again with corrected readings
+        and white wheel noise only.
+    wheel_scale_bounds : tuple of float
+        Limits of the wheel scale.
     batch_max_iterations : int
         Levenberg-Marquardt iteration limit of ``graph-batch``.
     """
@@ -126,6 +134,8 @@ class GraphConfig:
     output_covariance: bool = True
     range_scale: str = "off"
     range_scale_bounds: tuple[float, float] = (0.8, 1.25)
+    wheel_scale: str = "estimate"
+    wheel_scale_bounds: tuple[float, float] = (0.8, 1.25)
     batch_max_iterations: int = 100
 
     def __post_init__(self) -> None:
@@ -133,6 +143,8 @@ class GraphConfig:
             raise ConfigError(f"parameterisation must be one of {PARAMETERISATIONS}, got {self.parameterisation!r}")
         if self.robust_loss not in ROBUST_LOSSES:
             raise ConfigError(f"robust_loss must be one of {ROBUST_LOSSES}, got {self.robust_loss!r}")
+        if self.wheel_scale not in WHEEL_SCALE_MODES:
+            raise ConfigError(f"wheel_scale must be one of {WHEEL_SCALE_MODES}, got {self.wheel_scale!r}")
         if self.range_scale not in RANGE_SCALE_MODES:
             raise ConfigError(f"range_scale must be one of {RANGE_SCALE_MODES}, got {self.range_scale!r}")
         for f in fields(self):

@@ -278,12 +278,34 @@ class GraphBatch(_GraphEstimator):
             self.builder.range_scale = scale
         else:
             values = optimise(self.builder.graph(), initial, self.config, what)
+        if self.config.wheel_scale == "estimate" and self.builder.odometry_records and self.builder.odometry.has_speed:
+            values = self._estimate_wheel_scale(values, what)
         graph = self.builder.graph()
         covs = None
         if self.config.output_covariance:
             covs = marginal_covariances(graph, values, [self.model.pose_key(k) for k in range(self.builder.last_keyframe + 1)], what)
         return self._estimate(_rows_from_values(self.model, self.builder, values, covs))
 
+
+    def _estimate_wheel_scale(self, values: gtsam.Values, what: str) -> gtsam.Values:
+        """Self-calibrate the wheel scale, then solve with the scale-corrected wheel.
+
+        The first solve allows for a scale error (the wheel factors' drift
+        term); the scale that fits the wheel deltas to it corrects the
+        readings, whose factors then keep only their white noise, and the
+        graph is solved again (:data:`WHEEL_SCALE_ITERATIONS` times).
+        """
+        lo, hi = self.config.wheel_scale_bounds
+        for _ in range(WHEEL_SCALE_ITERATIONS):
+            scale = self.builder.fit_wheel_scale(values)
+            self.builder.wheel_scale = min(max(scale, lo), hi)
+            values = optimise(self.builder.graph(), values, self.config, f"{what} (wheel scale {self.builder.wheel_scale:.4f})")
+        self.builder.diagnostics["wheel_scale"] = self.builder.wheel_scale
+        return values
+
+
+#: Fit-and-solve rounds of the wheel-scale self-calibration.
+WHEEL_SCALE_ITERATIONS = 2
 
 #: Span of keyframes per iSAM2 update in graph-batch's seeding pass, s.
 BATCH_PASS_CHUNK_S = 5.0

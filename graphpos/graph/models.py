@@ -61,6 +61,18 @@ def robust(sigma: float | np.ndarray, config: GraphConfig, dim: int = 1) -> gtsa
     return base
 
 
+def _scaled(delta: OdometryDelta, wheel_scale: float | None) -> tuple[float, float, np.ndarray]:
+    """Delta translation and covariance with the wheel readings divided by ``wheel_scale``.
+
+    None: as integrated, with the wheel-scale drift term. A scale: the
+    white covariance, translation rows and columns divided by the scale.
+    """
+    if wheel_scale is None:
+        return delta.dx_m, delta.dy_m, delta.cov
+    d = np.array([1.0 / wheel_scale, 1.0 / wheel_scale, 1.0])
+    return delta.dx_m / wheel_scale, delta.dy_m / wheel_scale, delta.white_cov * np.outer(d, d)
+
+
 def _rot_en(yaw: float, cov_body_xy: np.ndarray) -> np.ndarray:
     c, s = math.cos(yaw), math.sin(yaw)
     R = np.array([[c, -s], [s, c]])
@@ -93,8 +105,18 @@ class PlanarModel:
         return []
 
     def odometry_factors(self, k: int, delta: OdometryDelta, pim) -> list:
-        noise = gtsam.noiseModel.Gaussian.Covariance(delta.cov)
-        return [gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(delta.dx_m, delta.dy_m, delta.dtheta_rad), noise)]
+        """The wheel + gyro factor (always first, see :meth:`wheel_factor`)."""
+        return [self.wheel_factor(k, delta)]
+
+    def wheel_factor(self, k: int, delta: OdometryDelta, wheel_scale: float | None = None):
+        """BetweenFactorPose2 of the delta; ``wheel_scale``: wheel readings divided by it, white covariance."""
+        dx, dy, cov = _scaled(delta, wheel_scale)
+        return gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(dx, dy, delta.dtheta_rad), gtsam.noiseModel.Gaussian.Covariance(cov))
+
+    def body_translation(self, values: gtsam.Values, k: int) -> np.ndarray:
+        """Translation from keyframe ``k - 1`` to ``k`` in ``k - 1``'s body frame."""
+        rel = values.atPose2(X(k - 1)).between(values.atPose2(X(k)))
+        return np.array([rel.x(), rel.y()])
 
     def landmark(self, key: int, east_m: float, north_m: float) -> tuple[list, object]:
         point = np.array([east_m, north_m])
@@ -220,16 +242,23 @@ class InertialModel:
         non-holonomic constraint (small lateral/vertical sigma); its yaw is
         loose so the gyro, already in the IMU factor, is not counted twice.
         """
+        return [self.wheel_factor(k, delta), gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), pim)]
+
+    def wheel_factor(self, k: int, delta: OdometryDelta, wheel_scale: float | None = None):
+        """The wheel odometry's BetweenFactorPose3 (``wheel_scale`` as in :class:`PlanarModel`)."""
+        dx, dy, planar_cov = _scaled(delta, wheel_scale)
         cov = np.zeros((6, 6))
         cov[0, 0] = cov[1, 1] = self.PLANE_TILT_SIGMA_RAD**2
         cov[2, 2] = self.ODOMETRY_YAW_SIGMA_RAD**2
-        cov[3:5, 3:5] = delta.cov[:2, :2]
-        cov[2, 3:5] = cov[3:5, 2] = 0.0
-        cov[5, 5] = max(delta.cov[1, 1], 1e-8)
-        between = gtsam.Pose3(gtsam.Rot3.Yaw(delta.dtheta_rad), np.array([delta.dx_m, delta.dy_m, 0.0]))
-        factors = [gtsam.BetweenFactorPose3(X(k - 1), X(k), between, gtsam.noiseModel.Gaussian.Covariance(cov))]
-        factors.append(gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), pim))
-        return factors
+        cov[3:5, 3:5] = planar_cov[:2, :2]
+        cov[5, 5] = max(planar_cov[1, 1], 1e-8)
+        between = gtsam.Pose3(gtsam.Rot3.Yaw(delta.dtheta_rad), np.array([dx, dy, 0.0]))
+        return gtsam.BetweenFactorPose3(X(k - 1), X(k), between, gtsam.noiseModel.Gaussian.Covariance(cov))
+
+    def body_translation(self, values: gtsam.Values, k: int) -> np.ndarray:
+        """Translation from keyframe ``k - 1`` to ``k`` in ``k - 1``'s body frame."""
+        rel = values.atPose3(X(k - 1)).between(values.atPose3(X(k)))
+        return np.asarray(rel.translation())[:2]
 
     def landmark(self, key: int, east_m: float, north_m: float) -> tuple[list, object]:
         point = np.array([east_m, north_m, 0.0])

@@ -24,7 +24,9 @@ class OdometryDelta:
 
     ``dx_m, dy_m`` in the first keyframe's body frame (x forward, y left),
     ``dtheta_rad`` counter-clockwise; ``cov`` is the 3x3 covariance of
-    ``(dx, dy, dtheta)``; ``mean_speed_mps`` the mean wheel speed.
+    ``(dx, dy, dtheta)``; ``white_cov`` the same without the wheel-scale
+    drift term (for a graph whose wheel scale is estimated);
+    ``mean_speed_mps`` the mean wheel speed.
     """
 
     dx_m: float
@@ -33,6 +35,7 @@ class OdometryDelta:
     cov: np.ndarray
     duration_s: float
     mean_speed_mps: float
+    white_cov: np.ndarray
 
 
 class PlanarOdometry:
@@ -121,12 +124,13 @@ class PlanarOdometry:
         v = np.asarray(self._v)
         w = np.asarray(self._w)
         self._dt, self._v, self._w = [], [], []
-        return integrate(dt, v, w, self._variances(dt, v))
+        scale_var = self.scale_var * v**2 / np.maximum(dt, 1e-9) if self.has_speed else np.zeros(dt.shape)
+        return integrate(dt, v, w, self._variances(dt), scale_var)
 
-    def _variances(self, dt: np.ndarray, speed_mps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _variances(self, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-segment variances of (speed, yaw rate, lateral speed), white noise held over dt."""
         safe = np.maximum(dt, 1e-9)
-        sv = (self.speed_var + self.scale_var * speed_mps**2) / safe if self.has_speed else np.full(dt.shape, self.UNMEASURED_SPEED_SIGMA_MPS**2)
+        sv = self.speed_var / safe if self.has_speed else np.full(dt.shape, self.UNMEASURED_SPEED_SIGMA_MPS**2)
         sw = self.yaw_rate_var / safe if self.has_yaw_rate else np.full(dt.shape, self.UNMEASURED_YAW_RATE_SIGMA_RADPS**2)
         return sv, sw + self.drift_var, self.slip_var / safe
 
@@ -136,7 +140,11 @@ _COV_FLOOR = np.diag([1e-8, 1e-8, 1e-10])
 
 
 def integrate(
-    dt_s: np.ndarray, speed_mps: np.ndarray, yaw_rate_radps: np.ndarray, variances: tuple[np.ndarray, np.ndarray, np.ndarray]
+    dt_s: np.ndarray,
+    speed_mps: np.ndarray,
+    yaw_rate_radps: np.ndarray,
+    variances: tuple[np.ndarray, np.ndarray, np.ndarray],
+    scale_variance: np.ndarray | None = None,
 ) -> OdometryDelta:
     """Zero-order-hold unicycle integration with first-order covariance.
 
@@ -146,12 +154,14 @@ def integrate(
     ``d p_end / d v_i = dt_i (cos theta_i, sin theta_i)``,
     ``d p_end / d w_j = dt_j J (p_end - p_{j+1})`` (J: +90 degree rotation),
     ``d theta_end / d w_j = dt_j``, and a lateral speed error ``s_i`` moves
-    the end by ``dt_i (-sin theta_i, cos theta_i)``.
+    the end by ``dt_i (-sin theta_i, cos theta_i)``. ``scale_variance``
+    (per segment, optional) is a further speed variance, kept out of
+    ``white_cov``.
     """
     n = dt_s.shape[0]
     total = float(dt_s.sum())
     if n == 0:
-        return OdometryDelta(0.0, 0.0, 0.0, _COV_FLOOR.copy(), 0.0, 0.0)
+        return OdometryDelta(0.0, 0.0, 0.0, _COV_FLOOR.copy(), 0.0, 0.0, _COV_FLOOR.copy())
     theta_start = np.concatenate(([0.0], np.cumsum(yaw_rate_radps * dt_s)))
     theta = theta_start[:-1]
     c, s = np.cos(theta), np.sin(theta)
@@ -170,6 +180,7 @@ def integrate(
     G[1, 2::3] = dt_s * c
     q = np.empty(3 * n)
     q[0::3], q[1::3], q[2::3] = variances
-    cov = (G * q) @ G.T + _COV_FLOOR
+    white = (G * q) @ G.T + _COV_FLOOR
+    cov = white if scale_variance is None else white + (G[:, 0::3] * scale_variance) @ G[:, 0::3].T
     mean_speed = float((speed_mps * dt_s).sum() / total) if total > 0 else 0.0
-    return OdometryDelta(float(p_end[0]), float(p_end[1]), float(theta_start[-1]), cov, total, mean_speed)
+    return OdometryDelta(float(p_end[0]), float(p_end[1]), float(theta_start[-1]), cov, total, mean_speed, white)
