@@ -36,6 +36,8 @@ class GraphConfig:
         M-estimator on range, RSU and GNSS factors.
     robust_k : float
         The M-estimator's threshold, in units of the measurement's sigma.
+    compass_loss : {"huber", "cauchy", "none"}, compass_robust_k : float
+        M-estimator of the compass yaw and its threshold (in sigmas).
     range_sigma_scale : float
         Factor on the range model's 1-sigma of every tag range. A tag's
         RSS shadowing is persistent, so its readings' errors repeat; as
@@ -110,7 +112,9 @@ class GraphConfig:
     parameterisation: str = "auto"
     robust_loss: str = "huber"
     robust_k: float = 1.345
-    range_sigma_scale: float = 1.0
+    range_sigma_scale: float = 1.5
+    compass_loss: str = "cauchy"
+    compass_robust_k: float = 0.5
     accel_sigma_mps2: float = 0.1
     gyro_sigma_radps: float = math.radians(0.2)
     imu_rate_hz: float = 100.0
@@ -119,7 +123,7 @@ class GraphConfig:
     accel_bias_walk_mps2_per_sqrt_s: float = 1e-2
     gyro_bias_walk_radps_per_sqrt_s: float = 1e-3
     wheel_speed_sigma_mps: float = 0.1
-    wheel_scale_density_per_sqrt_s: float = 0.1
+    wheel_scale_density_per_sqrt_s: float = 0.12
     wheel_rate_hz: float = 100.0
     lateral_slip_sigma_mps: float = 0.05
     heading_drift_sigma_radps: float = math.radians(0.1)
@@ -141,8 +145,9 @@ class GraphConfig:
     def __post_init__(self) -> None:
         if self.parameterisation not in PARAMETERISATIONS:
             raise ConfigError(f"parameterisation must be one of {PARAMETERISATIONS}, got {self.parameterisation!r}")
-        if self.robust_loss not in ROBUST_LOSSES:
-            raise ConfigError(f"robust_loss must be one of {ROBUST_LOSSES}, got {self.robust_loss!r}")
+        for name in ("robust_loss", "compass_loss"):
+            if getattr(self, name) not in ROBUST_LOSSES:
+                raise ConfigError(f"{name} must be one of {ROBUST_LOSSES}, got {getattr(self, name)!r}")
         if self.wheel_scale not in WHEEL_SCALE_MODES:
             raise ConfigError(f"wheel_scale must be one of {WHEEL_SCALE_MODES}, got {self.wheel_scale!r}")
         if self.range_scale not in RANGE_SCALE_MODES:

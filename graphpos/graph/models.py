@@ -47,18 +47,28 @@ class KeyframeState:
         return KeyframeState(self.east_m + de_m, self.north_m + dn_m, self.yaw_rad, self.v_east_mps, self.v_north_mps, self.bias)
 
 
-def robust(sigma: float | np.ndarray, config: GraphConfig, dim: int = 1) -> gtsam.noiseModel.Base:
-    """Gaussian noise with the configured M-estimator (Huber/Cauchy/none).
+def robust(sigma: float | np.ndarray, config: GraphConfig, dim: int = 1, loss: str | None = None, k: float | None = None) -> gtsam.noiseModel.Base:
+    """Gaussian noise with an M-estimator (default: the configured range loss).
 
-    Used for ranges, fixes and the compass (magnetic disturbances near
-    tunnel walls and vehicles give compass outliers of several degrees).
+    Used for ranges and fixes (``config.robust_loss``, ``robust_k``) and
+    the compass (``compass_loss``, ``compass_robust_k``).
     """
+    loss = config.robust_loss if loss is None else loss
+    k = config.robust_k if k is None else k
     base = gtsam.noiseModel.Isotropic.Sigma(dim, float(sigma)) if np.ndim(sigma) == 0 else gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigma, dtype=float))
-    if config.robust_loss == "huber":
-        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(config.robust_k), base)
-    if config.robust_loss == "cauchy":
-        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(config.robust_k), base)
+    if loss == "huber":
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(k), base)
+    if loss == "cauchy":
+        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Cauchy.Create(k), base)
     return base
+
+
+def compass_noise(sigma: float | np.ndarray, config: GraphConfig, dim: int = 1) -> gtsam.noiseModel.Base:
+    """The compass's noise: a magnetic disturbance (steel near the road) deflects
+    many consecutive readings by the same tens of degrees, so a bounded
+    influence per reading (Huber) still adds up; a redescending loss
+    (Cauchy) lets the gyro carry the heading through it."""
+    return robust(sigma, config, dim, config.compass_loss, config.compass_robust_k)
 
 
 def _scaled(delta: OdometryDelta, wheel_scale: float | None) -> tuple[float, float, np.ndarray]:
@@ -132,7 +142,7 @@ class PlanarModel:
         return 2
 
     def compass_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
-        return gtsam.PoseRotationPrior2D(X(k), gtsam.Rot2(yaw_rad), robust(sigma_rad, self.config))
+        return gtsam.PoseRotationPrior2D(X(k), gtsam.Rot2(yaw_rad), compass_noise(sigma_rad, self.config))
 
     def predict(self, state: KeyframeState, delta: OdometryDelta, pim) -> KeyframeState:
         pose = gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad).compose(gtsam.Pose2(delta.dx_m, delta.dy_m, delta.dtheta_rad))
@@ -274,7 +284,7 @@ class InertialModel:
         return 3
 
     def compass_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
-        noise = robust(np.array([self.FREE_SIGMA, self.FREE_SIGMA, sigma_rad]), self.config, 3)
+        noise = compass_noise(np.array([self.FREE_SIGMA, self.FREE_SIGMA, sigma_rad]), self.config, 3)
         return gtsam.PoseRotationPrior3D(X(k), gtsam.Rot3.Yaw(yaw_rad), noise)
 
     def predict(self, state: KeyframeState, delta: OdometryDelta, pim) -> KeyframeState:

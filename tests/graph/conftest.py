@@ -13,8 +13,9 @@ from graphpos.ranging.model import LinearCalibration
 PLAZA = Path(__file__).resolve().parents[2] / "../shared/data/plaza/Plaza1.mat"
 
 RANGE_SIGMA_M = 0.3
-#: The synthetic wheel has no scale error: graph configs that say so.
-EXACT_WHEEL = {"wheel_scale_density_per_sqrt_s": 1e-3}
+#: The synthetic drive's wheel has no scale error and its range errors are
+#: independent (no per-tag shadowing): graph configs that say so.
+SYNTHETIC_MODEL = {"wheel_scale_density_per_sqrt_s": 1e-3, "range_sigma_scale": 1.0}
 
 
 def synthetic_drive(
