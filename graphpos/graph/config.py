@@ -99,9 +99,9 @@ class GraphConfig:
         Search interval of the scale.
     wheel_scale : {"off", "estimate"}
         ``graph-batch`` only. ``estimate``: self-calibrate the wheel's
-        scale error (``reading = scale * speed``) from the drive: solve with
-        the drift term, fit the scale, solve again with corrected readings
-        and white wheel noise only.
+        scale error (``reading = scale * speed``) from the drive: fit it to
+        the causal pass (whose wheel factors carry the drift term), then
+        solve with corrected readings and white wheel noise only.
     wheel_scale_bounds : tuple of float
         Limits of the wheel scale.
     batch_max_iterations : int

@@ -273,13 +273,19 @@ class GraphBatch(_GraphEstimator):
         except RuntimeError as exc:
             raise gtsam_error(exc, f"{self.name}: initial estimate") from None
         what = f"{self.name} on '{self._drive_name}'"
+        fit_wheel = self.config.wheel_scale == "estimate" and self.builder.odometry_records and self.builder.odometry.has_speed
         if self.config.range_scale == "estimate" and self.builder.range_records:
+            # the range scale first: the causal pass's ranges (unscaled) would
+            # pass their scale error on to the wheel's
             scale, values = estimate_range_scale(self.builder, initial, self.config, what)
             self.builder.range_scale = scale
+            if fit_wheel:
+                self._fit_wheel_scale(values)
+                values = optimise(self.builder.graph(), values, self.config, what)
         else:
+            if fit_wheel:
+                self._fit_wheel_scale(initial)
             values = optimise(self.builder.graph(), initial, self.config, what)
-        if self.config.wheel_scale == "estimate" and self.builder.odometry_records and self.builder.odometry.has_speed:
-            values = self._estimate_wheel_scale(values, what)
         graph = self.builder.graph()
         covs = None
         if self.config.output_covariance:
@@ -287,25 +293,21 @@ class GraphBatch(_GraphEstimator):
         return self._estimate(_rows_from_values(self.model, self.builder, values, covs))
 
 
-    def _estimate_wheel_scale(self, values: gtsam.Values, what: str) -> gtsam.Values:
-        """Self-calibrate the wheel scale, then solve with the scale-corrected wheel.
+    def _fit_wheel_scale(self, values: gtsam.Values) -> None:
+        """Self-calibrate the wheel scale on the causal pass's estimate (or the range-scale solve's).
 
-        The first solve allows for a scale error (the wheel factors' drift
-        term); the scale that fits the wheel deltas to it corrects the
-        readings, whose factors then keep only their white noise, and the
-        graph is solved again (:data:`WHEEL_SCALE_ITERATIONS` times).
+        Their wheel factors allow for a scale error (their drift term), so
+        the trajectory follows the ranges, not the wheel's scale;
+        the scale fitting the wheel deltas to it corrects the readings, whose
+        factors then keep only their white noise in the batch solve. Fitting
+        on a drift-tolerant batch solve instead cost one more solve (10-minute
+        drive: 6.5 s against 4.7 s) for the same accuracy (sim, 5 seeds:
+        0.614 / 0.412 m against 0.607 / 0.419 m).
         """
         lo, hi = self.config.wheel_scale_bounds
-        for _ in range(WHEEL_SCALE_ITERATIONS):
-            scale = self.builder.fit_wheel_scale(values)
-            self.builder.wheel_scale = min(max(scale, lo), hi)
-            values = optimise(self.builder.graph(), values, self.config, f"{what} (wheel scale {self.builder.wheel_scale:.4f})")
+        self.builder.wheel_scale = min(max(self.builder.fit_wheel_scale(values), lo), hi)
         self.builder.diagnostics["wheel_scale"] = self.builder.wheel_scale
-        return values
 
-
-#: Fit-and-solve rounds of the wheel-scale self-calibration.
-WHEEL_SCALE_ITERATIONS = 2
 
 #: Span of keyframes per iSAM2 update in graph-batch's seeding pass, s.
 BATCH_PASS_CHUNK_S = 5.0

@@ -35,7 +35,7 @@ def test_wheel_scale_recovered_on_a_simulated_drive():
     true_scale = 1.0 + drive.params["realised"]["wheel_scale_error"]
     calibrated = ESTIMATORS["graph-batch"](GraphConfig(output_covariance=False), layout="optimized").run(drive)
     plain = ESTIMATORS["graph-batch"](GraphConfig(output_covariance=False, wheel_scale="off"), layout="optimized").run(drive)
-    assert calibrated.diagnostics["wheel_scale"] == pytest.approx(true_scale, abs=0.004)
+    assert calibrated.diagnostics["wheel_scale"] == pytest.approx(true_scale, abs=0.006)
     assert "wheel_scale" not in plain.diagnostics
     assert rms(position_errors(drive, calibrated)) < rms(position_errors(drive, plain))
 
