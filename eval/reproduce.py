@@ -78,11 +78,12 @@ class _Runs:
     def __init__(self) -> None:
         self.jobs: dict[_RunKey, Job] = {}
 
-    def add(self, source: Any, estimator: str, layout: str | None, keep: bool = False) -> _RunKey:
+    def add(self, source: Any, estimator: str, layout: str | None, keep: bool = False,
+            range_model: Any = None) -> _RunKey:
         key = (source if isinstance(source, SimSource) else "plaza", estimator, layout)
         old = self.jobs.get(key)
         if old is None or (keep and not old.keep_estimate):
-            self.jobs[key] = Job(source, estimator, layout=layout, keep_estimate=keep)
+            self.jobs[key] = Job(source, estimator, layout=layout, keep_estimate=keep, range_model=range_model)
         return key
 
 
@@ -222,13 +223,18 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
                 runs.add(src, name, layout)
     plaza_drive = None
     if plaza is not None or plaza_path.is_file():  # a given file must import (clear errors)
+        from graphpos.graph.calibration import calibrate_range_scale
         from graphpos.io.plaza import import_plaza
 
         plaza_drive = import_plaza(plaza_path)
         if quick:
             plaza_drive = first_seconds(plaza_drive, QUICK_PLAZA_S)
+        # Self-calibrated on the drive itself, without its truth (the only
+        # Plaza drive: no other drive to fit a calibration on).
+        plaza_model = calibrate_range_scale(plaza_drive)
+        plaza_drive = plaza_drive.replace(params={**plaza_drive.params, "range_model": plaza_model.to_dict()})
         for name in PLAZA_ESTIMATORS:
-            runs.add(plaza_drive, name, None, keep=True)
+            runs.add(plaza_drive, name, None, keep=True, range_model=plaza_model)
 
     folder.mkdir(parents=True, exist_ok=True)
     keys = list(runs.jobs)
@@ -385,8 +391,10 @@ def _plaza_section(report: Report, res: dict, drive, folder: Path, tables: dict)
                      fmt(r.metrics["wall_time_s"])])
     sec = report.section(f"Real data: Plaza ({drive.name})")
     sec.text(f"{drive.duration_s:.0f} s of driving: UWB ranges to beacons, wheel odometry and gyro; ground truth "
-             "from the dataset. Ranging is not calibrated on this drive's truth (the only Plaza drive): the default "
-             "range model uses the ranges as reported. One drive, so no spread."
+             "from the dataset. Every estimator uses one range calibration, self-calibrated from the drive "
+             "without its truth (graphpos.graph.calibrate_range_scale: range scale "
+             f"{drive.params['range_model']['scale']:.4f}, sigma {drive.params['range_model']['sigma0_m']:.2f} m). "
+             "One drive, so no spread."
              + (" --quick scores only the first minutes." if "cut_after_s" in drive.params else ""))
     sec.table(header, rows)
     estimates = [r.estimate for r in rs.values() if r.ok]
