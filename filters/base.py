@@ -36,7 +36,7 @@ import numpy as np
 from graphpos.drive import Drive, Measurement
 from graphpos.errors import MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
-from graphpos.estimator import Estimator, _with_wall_time
+from graphpos.estimator import Estimator
 
 
 #: Columns handed to :meth:`FilterEstimator._on_fix` for each position-fix channel.
@@ -302,4 +302,4 @@ class FilterEstimator(Estimator):
                 continue
             i += 1
         est = self.finish()
-        return _with_wall_time(est, time.perf_counter() - t0)
+        return est.with_wall_time(time.perf_counter() - t0)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
@@ -129,6 +130,10 @@ class Estimate:
             cov_en_m2=cov,
             **kwargs,
         )
+
+    def with_wall_time(self, wall_time_s: float) -> "Estimate":
+        """The same estimate, stamped with the processing time of its run."""
+        return dataclasses.replace(self, wall_time_s=wall_time_s)
 
     def table(self) -> dict[str, np.ndarray]:
         """Columns of :data:`CSV_COLUMNS`; NaN where not estimated."""

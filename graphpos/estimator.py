@@ -104,10 +104,4 @@ class Estimator(ABC):
         for m in drive.measurements(self.channels_used(drive)):
             self.process(m)
         est = self.finish()
-        return _with_wall_time(est, time.perf_counter() - t0)
-
-
-def _with_wall_time(est: Estimate, wall_time_s: float) -> Estimate:
-    from dataclasses import replace
-
-    return replace(est, wall_time_s=wall_time_s)
+        return est.with_wall_time(time.perf_counter() - t0)
