@@ -87,6 +87,20 @@ def test_sigma_table_is_the_binned_rms():
     assert np.isnan(table(np.array([np.nan]))[0])
 
 
+def test_sigma_table_follows_the_true_distance():
+    """Multiplicative errors (RSS fading): the table gives each true distance its own spread.
+
+    Binned by the prediction instead, a faded reading from 5 m predicted at
+    1.2 m would land in the near bin and inflate it.
+    """
+    rng = np.random.default_rng(3)
+    true = np.repeat([1.0, 5.0], 2000)
+    predicted = true * np.exp(0.3 * rng.standard_normal(true.size))
+    table = SigmaTable.fit(predicted, true, min_per_bin=2000)
+    np.testing.assert_allclose(table.distance_m, [1.0, 5.0])
+    np.testing.assert_allclose(table.sigma_m, [0.31, 1.55], rtol=0.06)
+
+
 def test_calibration_collection_follows_song2016():
     c = simulate_collection("tunnel", 3)
     assert CALIBRATION_DISTANCES_M.size == 15 + 30
