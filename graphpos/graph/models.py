@@ -157,6 +157,11 @@ class PlanarModel:
         yaw = pose.theta()
         return KeyframeState(pose.x(), pose.y(), yaw, speed_mps * math.cos(yaw), speed_mps * math.sin(yaw))
 
+    def position(self, values: gtsam.Values, k: int) -> tuple[float, float]:
+        """East, north of keyframe ``k`` in solved values."""
+        pose = values.atPose2(X(k))
+        return pose.x(), pose.y()
+
     def pose_key(self, k: int) -> int:
         return X(k)
 
@@ -304,6 +309,11 @@ class InertialModel:
         b = source.calculateEstimateConstantBias(B(k))
         bias = np.concatenate([b.accelerometer(), b.gyroscope()])
         return KeyframeState(pose.x(), pose.y(), pose.rotation().yaw(), float(v[0]), float(v[1]), bias)
+
+    def position(self, values: gtsam.Values, k: int) -> tuple[float, float]:
+        """East, north of keyframe ``k`` in solved values."""
+        t = values.atPose3(X(k)).translation()
+        return float(t[0]), float(t[1])
 
     def pose_key(self, k: int) -> int:
         return X(k)

@@ -13,6 +13,7 @@ graph, where it carries the wheel speed and the non-holonomic constraint).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -26,7 +27,10 @@ class OdometryDelta:
     ``dtheta_rad`` counter-clockwise; ``cov`` is the 3x3 covariance of
     ``(dx, dy, dtheta)``; ``white_cov`` the same without the wheel-scale
     drift term (for a graph whose wheel scale is estimated);
-    ``mean_speed_mps`` the mean wheel speed.
+    ``mean_speed_mps`` the mean wheel speed; ``drift_cov_per_density2`` the
+    drift term for a unit wheel-scale density (``cov = white_cov +
+    density**2 * drift_cov_per_density2``), to rebuild ``cov`` with another
+    density.
     """
 
     dx_m: float
@@ -36,6 +40,11 @@ class OdometryDelta:
     duration_s: float
     mean_speed_mps: float
     white_cov: np.ndarray
+    drift_cov_per_density2: np.ndarray
+
+    def with_drift_density(self, density_per_sqrt_s: float) -> "OdometryDelta":
+        """The same delta with the wheel-scale drift term of another density."""
+        return dataclasses.replace(self, cov=self.white_cov + density_per_sqrt_s**2 * self.drift_cov_per_density2)
 
 
 class PlanarOdometry:
@@ -124,8 +133,8 @@ class PlanarOdometry:
         v = np.asarray(self._v)
         w = np.asarray(self._w)
         self._dt, self._v, self._w = [], [], []
-        scale_var = self.scale_var * v**2 / np.maximum(dt, 1e-9) if self.has_speed else np.zeros(dt.shape)
-        return integrate(dt, v, w, self._variances(dt), scale_var)
+        unit_scale_var = v**2 / np.maximum(dt, 1e-9) if self.has_speed else np.zeros(dt.shape)
+        return integrate(dt, v, w, self._variances(dt), unit_scale_var, self.scale_var)
 
     def _variances(self, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-segment variances of (speed, yaw rate, lateral speed), white noise held over dt."""
@@ -144,7 +153,8 @@ def integrate(
     speed_mps: np.ndarray,
     yaw_rate_radps: np.ndarray,
     variances: tuple[np.ndarray, np.ndarray, np.ndarray],
-    scale_variance: np.ndarray | None = None,
+    unit_scale_variance: np.ndarray | None = None,
+    scale_density2: float = 0.0,
 ) -> OdometryDelta:
     """Zero-order-hold unicycle integration with first-order covariance.
 
@@ -154,14 +164,15 @@ def integrate(
     ``d p_end / d v_i = dt_i (cos theta_i, sin theta_i)``,
     ``d p_end / d w_j = dt_j J (p_end - p_{j+1})`` (J: +90 degree rotation),
     ``d theta_end / d w_j = dt_j``, and a lateral speed error ``s_i`` moves
-    the end by ``dt_i (-sin theta_i, cos theta_i)``. ``scale_variance``
-    (per segment, optional) is a further speed variance, kept out of
+    the end by ``dt_i (-sin theta_i, cos theta_i)``. ``unit_scale_variance``
+    (per segment, optional) is a further speed variance per unit wheel-scale
+    density squared; ``scale_density2`` times it enters ``cov``, not
     ``white_cov``.
     """
     n = dt_s.shape[0]
     total = float(dt_s.sum())
     if n == 0:
-        return OdometryDelta(0.0, 0.0, 0.0, _COV_FLOOR.copy(), 0.0, 0.0, _COV_FLOOR.copy())
+        return OdometryDelta(0.0, 0.0, 0.0, _COV_FLOOR.copy(), 0.0, 0.0, _COV_FLOOR.copy(), np.zeros((3, 3)))
     theta_start = np.concatenate(([0.0], np.cumsum(yaw_rate_radps * dt_s)))
     theta = theta_start[:-1]
     c, s = np.cos(theta), np.sin(theta)
@@ -181,6 +192,6 @@ def integrate(
     q = np.empty(3 * n)
     q[0::3], q[1::3], q[2::3] = variances
     white = (G * q) @ G.T + _COV_FLOOR
-    cov = white if scale_variance is None else white + (G[:, 0::3] * scale_variance) @ G[:, 0::3].T
+    drift = np.zeros((3, 3)) if unit_scale_variance is None else (G[:, 0::3] * unit_scale_variance) @ G[:, 0::3].T
     mean_speed = float((speed_mps * dt_s).sum() / total) if total > 0 else 0.0
-    return OdometryDelta(float(p_end[0]), float(p_end[1]), float(theta_start[-1]), cov, total, mean_speed, white)
+    return OdometryDelta(float(p_end[0]), float(p_end[1]), float(theta_start[-1]), white + scale_density2 * drift, total, mean_speed, white, drift)

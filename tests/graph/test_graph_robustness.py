@@ -81,11 +81,13 @@ def test_late_readings_attach_at_their_timestamp(name):
     assert est.diagnostics["late_attached"] == len(late.rfid)
     assert est.diagnostics["late_dropped"] == 0
     # every late reading sits at its own time: the same graph as on time, but
-    # for 2 s of epochs after the last odometry (the last readings arrive then)
+    # for 2 s of epochs after the last odometry (the last readings arrive
+    # then). Within 1 cm, not exactly: graph-batch weighs tag ranges by the
+    # sigma at its causal pass's distances, and that pass saw the readings late.
     final_on_time = run("graph-batch", on_time, parameterisation="planar")
     final_late = run("graph-batch", late, parameterisation="planar")
     n = len(final_on_time)
-    np.testing.assert_allclose(final_late.position[: n - 30], final_on_time.position[:-30], atol=1e-3)
+    np.testing.assert_allclose(final_late.position[: n - 30], final_on_time.position[:-30], atol=1e-2)
     # causal output: later information, but no corruption from misplaced readings
     within = est.t_s <= late.truth.t_s[-1]
     assert rms(position_errors(late, est)[within]) < 1.5 * rms(position_errors(on_time, ref)) + 0.05
