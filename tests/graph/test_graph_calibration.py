@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import SYNTHETIC_MODEL, position_errors, synthetic_drive
+from graph_drives import SYNTHETIC_MODEL, position_errors, synthetic_drive
 
 from graphpos.graph import ESTIMATORS
 from graphpos.graph.calibration import calibrate_range_scale

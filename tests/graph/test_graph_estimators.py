@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import position_errors, range_model, synthetic_drive, truth_at
+from graph_drives import position_errors, range_model, synthetic_drive, truth_at
 
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError, EstimationError, MissingChannelError

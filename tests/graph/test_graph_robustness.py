@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import SYNTHETIC_MODEL, position_errors, range_model, synthetic_drive, truth_at
+from graph_drives import SYNTHETIC_MODEL, position_errors, range_model, synthetic_drive, truth_at
 from scipy import stats
 
 from graphpos.drive import Drive
