@@ -42,7 +42,13 @@ class RangeModel(ABC):
 
     @abstractmethod
     def predict_sigma_m(self, distance_m: np.ndarray) -> np.ndarray:
-        """1-sigma of a predicted distance, as a function of that distance."""
+        """1-sigma of a reading's distance taken at this true distance.
+
+        The spread of the measurement given the state (what a filter's or a
+        factor's noise model is), so a caller evaluates it at its best
+        estimate of the true distance: the factor graph at its estimate's,
+        the filters (and :meth:`ranges`) at the reading's own distance.
+        """
 
     @abstractmethod
     def to_dict(self) -> dict[str, Any]:
