@@ -515,6 +515,9 @@ class GraphBuilder:
         for inc in window:
             allowed.update(self.model.keyframe_keys(inc.keyframe))
             merged.released.append(inc.keyframe)
+        first = merged.released[0]
+        extra = self.model.first_keyframe_keys(first)  # e.g. the bias node in effect, created before the window
+        allowed.update(extra)
         for inc in window:
             for i in range(inc.factors.size()):
                 factor = inc.factors.at(i)
@@ -523,6 +526,9 @@ class GraphBuilder:
             merged.timestamps.update({key: t for key, t in inc.timestamps.items() if key in allowed})
         for k in merged.released:
             self.model.insert_values(merged.values, k, self.states[k])
+        if extra:
+            self.model.insert_bias(merged.values, first, self.states[first])
+            merged.timestamps.update({key: self.keyframe_time(first) for key in extra})
         for key, point in self._backlog_landmarks.items():
             merged.values.insert(key, point)
             merged.timestamps.setdefault(key, merged.t_s)

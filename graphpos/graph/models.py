@@ -9,7 +9,7 @@ Conventions
 -----------
 The planar graph's Pose2 is ``(east, north, yaw)``. The inertial graph's
 navigation frame is east-north-up, the body frame x forward, y left, z up.
-GTSAM's ``PreintegrationCombinedParams.MakeSharedU(g)`` puts gravity at
+GTSAM's ``PreintegrationParams.MakeSharedU(g)`` puts gravity at
 ``(0, 0, -g)`` in that frame, so an accelerometer at rest reads ``+g`` on its
 z axis: the planar IMU's two accelerations are fed as the specific force
 ``(a_x, a_y, +g)`` and its yaw rate as ``(0, 0, w_z)``. A planar prior on
@@ -104,6 +104,9 @@ class PlanarModel:
     def keyframe_keys(self, k: int) -> list[int]:
         return [X(k)]
 
+    def first_keyframe_keys(self, k: int) -> list[int]:
+        return []
+
     def insert_values(self, values: gtsam.Values, k: int, state: KeyframeState) -> None:
         values.insert(X(k), gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad))
 
@@ -174,7 +177,14 @@ class PlanarModel:
 
 
 class InertialModel:
-    """Pose3 ``X(k)``, velocity ``V(k)``, IMU bias ``B(k)``; CombinedImuFactor between keyframes."""
+    """Pose3 ``X(k)`` and velocity ``V(k)`` per keyframe; IMU bias ``B(b)`` once per :attr:`BIAS_EVERY` keyframes.
+
+    Between keyframes an ImuFactor with the bias in effect (``bias_key``);
+    consecutive bias nodes are tied by a BetweenFactorConstantBias with the
+    bias random walk over their interval. A bias node per keyframe (GTSAM's
+    CombinedImuFactor) made 15 unknowns per keyframe; the biases drift over
+    minutes, so one node per second loses nothing and leaves 9.6.
+    """
 
     name = "inertial"
 
@@ -187,10 +197,12 @@ class InertialModel:
     ODOMETRY_YAW_SIGMA_RAD = 0.1
     #: Position integration variance density of the IMU preintegration, m^2/s.
     INTEGRATION_VARIANCE_M2PS = 1e-4
+    #: Keyframes per IMU-bias node.
+    BIAS_EVERY = 10
 
     def __init__(self, config: GraphConfig):
         self.config = config
-        params = gtsam.PreintegrationCombinedParams.MakeSharedU(GRAVITY_MPS2)
+        params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY_MPS2)
         accel_density = config.accel_sigma_mps2 / math.sqrt(config.imu_rate_hz)
         gyro_density = config.gyro_sigma_radps / math.sqrt(config.imu_rate_hz)
         params.setAccelerometerCovariance(np.eye(3) * accel_density**2)
@@ -200,8 +212,7 @@ class InertialModel:
         # also keeps the IMU factor's position block from being so stiff that
         # a long tag gap makes iSAM2's Cholesky indeterminate.
         params.setIntegrationCovariance(np.eye(3) * self.INTEGRATION_VARIANCE_M2PS)
-        params.setBiasAccCovariance(np.eye(3) * config.accel_bias_walk_mps2_per_sqrt_s**2)
-        params.setBiasOmegaCovariance(np.eye(3) * config.gyro_bias_walk_radps_per_sqrt_s**2)
+        self.bias_walk_density = np.array([config.accel_bias_walk_mps2_per_sqrt_s] * 3 + [config.gyro_bias_walk_radps_per_sqrt_s] * 3)
         self.params = params
         self.vertical_velocity_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([self.FREE_SIGMA, self.FREE_SIGMA, config.lateral_slip_sigma_mps]))
         self.plane_noise = gtsam.noiseModel.Diagonal.Sigmas(
@@ -209,7 +220,15 @@ class InertialModel:
         )
 
     def keyframe_keys(self, k: int) -> list[int]:
-        return [X(k), V(k), B(k)]
+        return [X(k), V(k), B(k)] if k % self.BIAS_EVERY == 0 else [X(k), V(k)]
+
+    def bias_key(self, k: int) -> int:
+        """The bias node in effect from keyframe ``k`` to ``k + 1``."""
+        return B(k - k % self.BIAS_EVERY)
+
+    def first_keyframe_keys(self, k: int) -> list[int]:
+        """Keys beyond :meth:`keyframe_keys` that the graph's first keyframe needs: its bias node."""
+        return [] if k % self.BIAS_EVERY == 0 else [self.bias_key(k)]
 
     @staticmethod
     def _pose(state: KeyframeState) -> gtsam.Pose3:
@@ -218,7 +237,12 @@ class InertialModel:
     def insert_values(self, values: gtsam.Values, k: int, state: KeyframeState) -> None:
         values.insert(X(k), self._pose(state))
         values.insert(V(k), np.array([state.v_east_mps, state.v_north_mps, 0.0]))
-        values.insert(B(k), gtsam.imuBias.ConstantBias(*self._bias_parts(state.bias)))
+        if k % self.BIAS_EVERY == 0:
+            self.insert_bias(values, k, state)
+
+    def insert_bias(self, values: gtsam.Values, k: int, state: KeyframeState) -> None:
+        """The value of keyframe ``k``'s bias node."""
+        values.insert(self.bias_key(k), gtsam.imuBias.ConstantBias(*self._bias_parts(state.bias)))
 
     @staticmethod
     def _bias_parts(bias: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
@@ -236,7 +260,7 @@ class InertialModel:
         return [
             gtsam.PriorFactorPose3(X(k), self._pose(state), pose_noise),
             gtsam.PriorFactorVector(V(k), np.array([state.v_east_mps, state.v_north_mps, 0.0]), gtsam.noiseModel.Isotropic.Sigma(3, speed_sigma)),
-            gtsam.PriorFactorConstantBias(B(k), gtsam.imuBias.ConstantBias(), bias_noise),
+            gtsam.PriorFactorConstantBias(self.bias_key(k), gtsam.imuBias.ConstantBias(), bias_noise),
         ]
 
     def keyframe_factors(self, k: int, state: KeyframeState) -> list:
@@ -251,13 +275,17 @@ class InertialModel:
         ]
 
     def odometry_factors(self, k: int, delta: OdometryDelta, pim) -> list:
-        """CombinedImuFactor plus the wheel odometry as a BetweenFactorPose3.
+        """ImuFactor plus the wheel odometry as a BetweenFactorPose3 (and the bias walk at a new bias node).
 
         The between factor's translation carries the wheel speed and the
         non-holonomic constraint (small lateral/vertical sigma); its yaw is
         loose so the gyro, already in the IMU factor, is not counted twice.
         """
-        return [self.wheel_factor(k, delta), gtsam.CombinedImuFactor(X(k - 1), V(k - 1), X(k), V(k), B(k - 1), B(k), pim)]
+        factors = [self.wheel_factor(k, delta), gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), self.bias_key(k - 1), pim)]
+        if k % self.BIAS_EVERY == 0:
+            walk = gtsam.noiseModel.Diagonal.Sigmas(self.bias_walk_density * math.sqrt(self.BIAS_EVERY / self.config.keyframe_rate_hz))
+            factors.append(gtsam.BetweenFactorConstantBias(self.bias_key(k - 1), B(k), gtsam.imuBias.ConstantBias(), walk))
+        return factors
 
     def wheel_factor(self, k: int, delta: OdometryDelta, wheel_scale: float | None = None):
         """The wheel odometry's BetweenFactorPose3 (``wheel_scale`` as in :class:`PlanarModel`)."""
@@ -306,7 +334,7 @@ class InertialModel:
         """Keyframe ``k`` from a smoother (or :class:`~graphpos.graph.smoothers.ValuesSource`)."""
         pose = source.calculateEstimatePose3(X(k))
         v = source.calculateEstimateVector(V(k))
-        b = source.calculateEstimateConstantBias(B(k))
+        b = source.calculateEstimateConstantBias(self.bias_key(k))
         bias = np.concatenate([b.accelerometer(), b.gyroscope()])
         return KeyframeState(pose.x(), pose.y(), pose.rotation().yaw(), float(v[0]), float(v[1]), bias)
 
@@ -323,7 +351,7 @@ class InertialModel:
         return _rot_en(state.yaw_rad, marginal[3:5, 3:5])
 
     def new_preintegration(self, bias: np.ndarray | None):
-        return gtsam.PreintegratedCombinedMeasurements(self.params, gtsam.imuBias.ConstantBias(*self._bias_parts(bias)))
+        return gtsam.PreintegratedImuMeasurements(self.params, gtsam.imuBias.ConstantBias(*self._bias_parts(bias)))
 
 
 def make_model(config: GraphConfig, has_accelerometers: bool):
