@@ -141,10 +141,13 @@ def test_default_model_per_drive_kind():
     assert isinstance(ranged, LinearCalibration) and (ranged.scale, ranged.offset_m) == (1.0, 0.0)
     assert ranged.predict_sigma_m(np.array([0.0, 20.0])) == pytest.approx([0.3, 1.3])
     rss_drive = _drive(rss=[220.0, 190.0, 170.0])
-    hits = _calibrated.cache_info().hits
+    before = _calibrated.cache_info()
     first, second = default_range_model(rss_drive), default_range_model(rss_drive)
     assert isinstance(first, LssvmRangeModel) and first is not second
-    assert _calibrated.cache_info().hits >= hits + 2  # fitted once per environment, then cached
+    after = _calibrated.cache_info()
+    # fitted at most once per environment (a test run in the same worker may
+    # have fitted it already), then cached
+    assert after.misses - before.misses <= 1 and after.hits - before.hits >= 1
     d, sigma = first.ranges(rss_drive.rfid)
     assert np.all(np.diff(d) > 0) and np.all(sigma > 0)
     with pytest.raises(ConfigError, match="unknown RSS environment"):
