@@ -79,10 +79,27 @@ def test_causal_and_smoothed_accuracy():
     drive = synthetic_drive(40, seed=4, turn_radps=0.05)
     causal = rms(position_errors(drive, run("graph-isam2", drive)))
     smoothed = rms(position_errors(drive, run("graph-batch", drive)))
-    lag = rms(position_errors(drive, run("graph-fixed-lag", drive)))
     assert smoothed < causal
     assert causal < 0.3 and smoothed < 0.15
-    assert abs(lag - causal) < 0.05
+
+
+def test_fixed_lag_causal_output_equals_isam2():
+    """Marginalising keyframes older than the lag loses nothing the causal estimate uses.
+
+    The drive lasts four lags; iSAM2 keeps the whole history, the fixed-lag
+    smoother about 10 s of it (marginalised once a second). The two force
+    their relinearisation at the anchoring keyframe differently (GTSAM's
+    fixed-lag wrapper takes no update parameters), which leaves up to 2 cm
+    between them around it.
+    """
+    drive = synthetic_drive(40, seed=4, turn_radps=0.05)
+    full = run("graph-isam2", drive)
+    lag = run("graph-fixed-lag", drive)
+    gap_m = np.linalg.norm(lag.position - full.position, axis=1)
+    assert gap_m.max() < 0.02
+    marginalising = lag.t_s > lag.t_s[0] + 12.0
+    assert gap_m[marginalising].max() < 1e-3
+    np.testing.assert_allclose(lag.cov_en_m2[marginalising], full.cov_en_m2[marginalising], rtol=1e-3, atol=1e-6)
 
 
 def test_cauchy_loss_and_no_loss_run():
