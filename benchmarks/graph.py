@@ -8,7 +8,9 @@ Prints, as ratios to real time:
 - a ``--long`` (default 60-minute) drive: ``graph-fixed-lag``'s cost
   against its short-drive cost (target <= 6.5x) and its resident memory
   through the run (target: flat). The short-drive cost is the mean of a run
-  before and a run after the long one.
+  before and a run after the long one. The CPU time of each sixth of the
+  long drive is printed too: a flat cost shows as equal sixths, and a drift
+  of the machine's speed as a trend shared with the short runs.
 
     python benchmarks/graph.py [--scenario paper-straight] [--short 600] [--long 3600]
                                [--parameterisation auto|planar|inertial] [--skip-long]
@@ -56,11 +58,15 @@ def rss_mb() -> float:
 
 
 def timed_run(name: str, drive, config: GraphConfig, sample_rss: bool = False) -> dict:
-    """Run ``name`` on ``drive`` through start/process/finish, sampling RSS."""
+    """Run ``name`` on ``drive`` through start/process/finish.
+
+    ``sample_rss``: also sample the resident memory and the CPU time at the
+    start and after each sixth of the measurements.
+    """
     est = ESTIMATORS[name](config)
     drive = est.prepare(drive)
     measurements = list(drive.measurements(est.channels_used(drive)))
-    rss = []
+    rss, cpu_marks = [], []
     checkpoints = set(np.linspace(0, len(measurements) - 1, 7).astype(int).tolist()) if sample_rss else set()
     t0 = time.perf_counter()
     c0 = time.process_time()
@@ -69,6 +75,7 @@ def timed_run(name: str, drive, config: GraphConfig, sample_rss: bool = False) -
         est.process(m)
         if i in checkpoints:
             rss.append(rss_mb())
+            cpu_marks.append(time.process_time())
     result = est.finish()
     wall = time.perf_counter() - t0
     cpu = time.process_time() - c0
@@ -83,6 +90,7 @@ def timed_run(name: str, drive, config: GraphConfig, sample_rss: bool = False) -
         "update_p95_ms": d["update_ms_p95"],
         "parameterisation": d["parameterisation"],
         "rss_mb": rss,
+        "cpu_per_sixth_s": np.diff(cpu_marks).tolist(),
     }
 
 
@@ -188,6 +196,7 @@ def main() -> None:
         f"{ratio:.2f}x its {short.duration_s:.0f} s cost (mean of before and after; length ratio {long.duration_s / short.duration_s:.1f}), "
         f"update p95 {r['update_p95_ms']:.2f} ms"
     )
+    print("  CPU per sixth of the drive (s): " + ", ".join(f"{x:.2f}" for x in r["cpu_per_sixth_s"]) + " (flat cost: equal sixths, up to the machine's own drift)")
     rss = r["rss_mb"]
     print("  RSS through the run (MB): " + ", ".join(f"{x:.0f}" for x in rss) + f"; growth after the first sixth {rss[-1] - rss[1]:+.0f} MB")
 
