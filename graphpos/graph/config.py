@@ -109,7 +109,9 @@ class GraphConfig:
         A range/RSU reading arriving up to this late is attached to the
         keyframe of its own timestamp; later ones are dropped (counted).
     fixed_lag_s : float
-        Smoother lag of ``graph-fixed-lag``.
+        Smoother lag of ``graph-fixed-lag``, s. Keyframes are marginalised
+        once per ``smoothers.MARGINALISE_EVERY_S`` (1 s), so the window
+        holds between ``fixed_lag_s`` and ``fixed_lag_s`` + 1 s.
     final : bool
         ``graph-isam2`` only: return the smoothed trajectory at the end
         instead of the causal one.
