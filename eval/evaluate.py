@@ -59,6 +59,7 @@ def result_record(r: JobResult) -> dict[str, Any]:
         "layout": r.job.layout,
         "range_model": r.job.range_model if isinstance(r.job.range_model, (str, type(None))) else repr(r.job.range_model),
         "tag": r.job.tag,
+        "settings": r.job.settings,
         "config": r.config,
         "metrics": r.metrics,
         "error": r.error,
@@ -140,7 +141,7 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
 
 def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Path, layout: str | None = None,
              range_model: Any = None, workers: int | None = None, scheduler: str | None = None,
-             progress: bool = True, mcap: bool = True) -> Outcome:
+             progress: bool = True, mcap: bool = True, settings: dict[str, dict[str, str]] | None = None) -> Outcome:
     """Run ``estimators`` on ``drives`` and write the evaluation folder.
 
     Parameters
@@ -153,7 +154,11 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
     layout, range_model, workers, scheduler : see :class:`eval.execution.Job` and :func:`eval.execution.execute`.
     mcap : bool
         Write the combined MCAP per drive.
+    settings : dict, optional
+        ``{estimator name: {key: value text}}`` changes to the estimators'
+        default configs (:mod:`graphpos.settings`); stated in the report.
     """
+    settings = settings or {}
     for source, drive in drives:
         if isinstance(source, FileSource):
             with naming_file(source.path):
@@ -163,7 +168,8 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     jobs = [
-        Job(source, name, layout=layout, range_model=range_model, keep_estimate=True, tag={"drive_index": i})
+        Job(source, name, layout=layout, range_model=range_model, settings=settings.get(name, {}), keep_estimate=True,
+            tag={"drive_index": i})
         for i, (source, _) in enumerate(drives)
         for name in estimators
     ]
@@ -173,6 +179,8 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
         f"Estimators: {', '.join(estimators)}. Errors are absolute (estimate minus truth interpolated at the "
         "estimate epochs, no alignment). 2DRMS = 2 x RMS of the horizontal error. ANEES band: two-sided 95 % "
         "chi-square band for independent epochs. RTF = wall time / drive duration."
+        + "".join(f" {name} settings: " + ", ".join(f"{k}={v}" for k, v in changed.items()) + "."
+                  for name, changed in settings.items())
     )
     used: set[str] = set()
     for i, (_, drive) in enumerate(drives):
@@ -189,6 +197,7 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
         "command": "evaluate",
         "provenance": provenance(),
         "estimators": estimators,
+        "settings": settings,
         "layout": layout,
         "drives": [describe_source(s) | {"name": d.name, "params": d.params} for s, d in drives],
         "results": [result_record(r) for r in results],

@@ -111,6 +111,9 @@ class Job:
         Tag layout the estimator hears.
     range_model : str, RangeModel or None
         A saved model's path, a model, or None for the drive's default.
+    settings : dict
+        ``{key: value text}`` changes to the estimator's default config
+        (:mod:`graphpos.settings`).
     keep_estimate : bool
         Send the estimate back (for plots and exports).
     tag : dict
@@ -121,6 +124,7 @@ class Job:
     estimator: str
     layout: str | None = None
     range_model: Any = None
+    settings: dict[str, str] = field(default_factory=dict)
     keep_estimate: bool = False
     tag: dict[str, Any] = field(default_factory=dict)
 
@@ -158,24 +162,19 @@ def _range_model(spec: Any) -> Any:
     return load_range_model(spec)
 
 
-def _config_dict(config: Any) -> dict[str, Any]:
-    if dataclasses.is_dataclass(config):
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(config).items()}
-    return {"repr": repr(config)}
-
-
 def run_job(job: Job) -> JobResult:
     """Build the drive and the estimator, run, score; never raises."""
     from eval.metrics import evaluate_estimate
     from graphpos.registry import make_estimator
+    from graphpos.settings import config_dict
 
     result = JobResult(job)
     try:
         drive = load_drive(job.source)
         result.drive_name = drive.name
         result.drive_params = dict(drive.params)
-        est = make_estimator(job.estimator, layout=job.layout, range_model=_range_model(job.range_model))
-        result.config = _config_dict(est.config)
+        est = make_estimator(job.estimator, settings=job.settings, layout=job.layout, range_model=_range_model(job.range_model))
+        result.config = config_dict(est.config)
         t0 = time.perf_counter()
         estimate = est.run(drive)
         if estimate.wall_time_s != estimate.wall_time_s:  # NaN: the estimator did not time itself

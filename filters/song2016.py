@@ -42,8 +42,9 @@ from filters.models import vehicle
 from filters.models.angles import angle_residual, wrap_angle
 from filters.models.vehicle import PE, PN, VE, VN, YAW
 from graphpos.drive import Drive
-from graphpos.errors import MissingChannelError
+from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import OutputRow
+from graphpos.estimator import require_positive_numbers
 
 _DEG = math.pi / 180.0
 
@@ -114,6 +115,17 @@ class VehicleFilterConfig:
     range_gate_probability: float = 0.999
     range_sigma_scale: float = 1.2
 
+    def __post_init__(self) -> None:
+        # the unscented transform's beta and kappa (FukfConfig) may be zero or negative
+        require_positive_numbers(self, skip=("ukf_beta", "ukf_kappa"))
+        require_probability(self.range_gate_probability)
+
+
+def require_probability(p: float) -> None:
+    """The range gate's probability must lie in (0, 1] (1: no gate)."""
+    if not 0.0 < p <= 1.0:
+        raise ConfigError(f"range_gate_probability must lie in (0, 1], got {p}")
+
 
 @dataclass
 class RfidEkfConfig:
@@ -138,6 +150,12 @@ class RfidEkfConfig:
     range_gate_probability: float = 0.999
     update_iterations: int = 3
 
+    def __post_init__(self) -> None:
+        require_positive_numbers(self)
+        require_probability(self.range_gate_probability)
+        if self.update_iterations < 1:
+            raise ConfigError(f"update_iterations must be at least 1, got {self.update_iterations}")
+
 
 @dataclass
 class MultilaterationConfig:
@@ -150,6 +168,10 @@ class MultilaterationConfig:
     """
 
     min_tags: int = 3
+
+    def __post_init__(self) -> None:
+        if self.min_tags < 3:
+            raise ConfigError(f"a 2-D fix from ranges needs min_tags >= 3, got {self.min_tags}")
 
 
 @dataclass
@@ -176,6 +198,15 @@ class FukfConfig(VehicleFilterConfig):
     ukf_alpha: float = 0.3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        for name in ("beta_few_tags", "beta_many_tags"):
+            betas = getattr(self, name)
+            if len(betas) != 2 or any(not 0.0 < b < 1.0 for b in betas) or not math.isclose(sum(betas), 1.0):
+                raise ConfigError(f"{name} needs two coefficients in (0, 1) that sum to 1 (song2016 eq. 35), got {betas}")
+        if self.many_tags < 1:
+            raise ConfigError(f"many_tags must be at least 1, got {self.many_tags}")
 
 
 @dataclass

@@ -22,13 +22,27 @@ tests must show gives the same result).
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import time
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
 from graphpos.drive import Drive, Measurement
-from graphpos.errors import MissingChannelError
+from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
+
+
+def require_positive_numbers(config: Any, skip: tuple[str, ...] = ()) -> None:
+    """Raise ConfigError unless every float field of ``config`` (but ``skip``) is finite and positive.
+
+    Sigmas, rates, densities and scale factors are all positive; a zero or
+    negative one would give a singular or meaningless filter, not an error.
+    """
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if f.name not in skip and isinstance(value, float) and not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"{f.name} must be a positive finite number, got {value}")
 
 
 class Estimator(ABC):

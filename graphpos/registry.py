@@ -25,9 +25,18 @@ def estimator_classes() -> dict[str, type[Estimator]]:
     return classes
 
 
-def make_estimator(name: str, **kwargs) -> Estimator:
-    """Build an estimator by name; a clear error for an unknown one."""
+def make_estimator(name: str, settings: dict[str, str] | None = None, **kwargs) -> Estimator:
+    """Build an estimator by name; a clear error for an unknown one.
+
+    ``settings``: ``{key: value text}`` applied to its default config
+    (:func:`graphpos.settings.apply_settings`).
+    """
     classes = estimator_classes()
     if name not in classes:
         raise ConfigError(f"unknown estimator '{name}' (known: {', '.join(classes)})")
-    return classes[name](**kwargs)
+    cls = classes[name]
+    if settings:
+        from graphpos.settings import apply_settings
+
+        kwargs["config"] = apply_settings(cls.default_config(), settings, name)
+    return cls(**kwargs)

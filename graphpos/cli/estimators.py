@@ -41,13 +41,43 @@ def register(sub) -> None:
     p.add_argument("--range-model", type=Path, metavar="F",
                    help="range model JSON (from `graphpos ranging fit`); default: the drive's default model")
     p.add_argument("--out-dir", type=Path, required=True, metavar="DIR", help="output folder (created if absent)")
+    add_settings_options(p)
     p.set_defaults(func=_run)
+
+
+def add_settings_options(p: argparse.ArgumentParser) -> None:
+    """``--set`` and ``--final``, read back by :func:`estimator_settings`."""
+    p.add_argument("--set", dest="settings", action="append", default=[], metavar="[NAME.]KEY=VALUE",
+                   help="change an estimator setting (repeat); without NAME, every selected estimator that "
+                        "has KEY; `graphpos estimators --json` lists the settings (e.g. --set fixed_lag_s=20, "
+                        "--set graph-isam2.max_delay_s=5)")
+    p.add_argument("--final", action="store_true",
+                   help="graph-isam2 returns its final smoothed trajectory instead of the causal one "
+                        "(same as --set graph-isam2.final=true)")
+
+
+def estimator_settings(args: argparse.Namespace, names: list[str]) -> dict[str, dict[str, str]]:
+    """``{estimator name: {key: value text}}`` from ``--set`` and ``--final``."""
+    from graphpos.registry import estimator_classes
+    from graphpos.settings import parse_settings
+
+    items = list(args.settings)
+    if args.final:
+        if "graph-isam2" not in names:
+            raise ConfigError("--final applies to graph-isam2, which is not selected")
+        items.append("graph-isam2.final=true")
+    classes = estimator_classes()
+    unknown = [n for n in names if n not in classes]
+    if unknown:
+        raise ConfigError(f"unknown estimator(s) {', '.join(unknown)} (known: {', '.join(classes)})")
+    return parse_settings(items, names, {n: classes[n].default_config() for n in names})
 
 
 def _estimators(args: argparse.Namespace) -> int:
     import dataclasses
 
     from graphpos.registry import estimator_classes
+    from graphpos.settings import config_dict
 
     rows = []
     for name, cls in estimator_classes().items():
@@ -57,7 +87,7 @@ def _estimators(args: argparse.Namespace) -> int:
             "summary": cls.summary,
             "required_channels": list(cls.required_channels),
             "optional_channels": list(cls.optional_channels),
-            "config": json.loads(json.dumps(dataclasses.asdict(cfg), default=str)) if dataclasses.is_dataclass(cfg) else {},
+            "config": config_dict(cfg) if dataclasses.is_dataclass(cfg) else {},
         })
     if args.json:
         print(json.dumps(rows, indent=1))
@@ -81,6 +111,7 @@ def _run(args: argparse.Namespace) -> int:
     from graphpos.io.exports import csv_text, write_atomically
     from graphpos.ranging import load_range_model
     from graphpos.registry import make_estimator
+    from graphpos.settings import config_dict
 
     names = list(dict.fromkeys(args.estimators))
     if "truth" in names:
@@ -89,7 +120,8 @@ def _run(args: argparse.Namespace) -> int:
         raise FileFormatError(f"{args.out_dir}: exists and is not a folder")
     drive = read_drive(args.drive)
     range_model = load_range_model(args.range_model) if args.range_model else None
-    estimators = [make_estimator(n, layout=args.layout, range_model=range_model) for n in names]
+    settings = estimator_settings(args, names)
+    estimators = [make_estimator(n, settings=settings.get(n), layout=args.layout, range_model=range_model) for n in names]
     with naming_file(args.drive):
         if args.layout:
             drive.tags.layout(args.layout)  # a clear error for an unknown layout
@@ -110,9 +142,11 @@ def _run(args: argparse.Namespace) -> int:
                 "outputs": len(e),
                 "rate_hz": e.rate_hz if e.rate_hz == e.rate_hz else None,
                 "has_velocity": e.has_velocity,
+                "settings": settings.get(e.name, {}),
+                "config": config_dict(est.config),
                 "diagnostics": e.diagnostics,
             }
-            for e in estimates
+            for est, e in zip(estimators, estimates)
         },
     }
     outputs["run.json"] = json.dumps(summary, indent=1, default=float)

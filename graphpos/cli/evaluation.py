@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from graphpos.cli.estimators import add_settings_options, estimator_settings
+
 
 def _add_execution_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", "--output", required=True, type=Path, help="output folder (created)")
@@ -32,6 +34,7 @@ def register(sub) -> None:
                    help="estimator name (repeat, or comma-separate); see `graphpos estimators`")
     p.add_argument("--layout", default=None, help="tag layout the estimators hear (default: every tag)")
     p.add_argument("--range-model", default=None, type=str, metavar="FILE", help="saved range model (JSON)")
+    add_settings_options(p)
     _add_execution_options(p)
     p.set_defaults(func=_evaluate)
 
@@ -76,19 +79,15 @@ def _finish(outcome, started: float, command: str) -> int:
 def _evaluate(args) -> int:
     from eval.evaluate import evaluate, file_sources
     from graphpos.errors import ConfigError
-    from graphpos.registry import estimator_classes
 
     started = time.perf_counter()
     names = _names(args.estimators)
-    known = estimator_classes()
-    unknown = [n for n in names if n not in known]
-    if unknown:
-        raise ConfigError(f"unknown estimator(s) {', '.join(unknown)} (known: {', '.join(known) or 'none'})")
+    settings = estimator_settings(args, names)
     if args.range_model is not None and not Path(args.range_model).is_file():
         raise ConfigError(f"range model file {args.range_model} does not exist")
     drives = file_sources(args.drives)
     outcome = evaluate(drives, names, args.output, layout=args.layout, range_model=args.range_model,
-                       workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+                       workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress, settings=settings)
     return _finish(outcome, started, "evaluate")
 
 

@@ -9,9 +9,10 @@ typical automotive values, documented beside each field.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 from graphpos.errors import ConfigError
+from graphpos.estimator import require_positive_numbers
 
 PARAMETERISATIONS = ("auto", "planar", "inertial")
 ROBUST_LOSSES = ("huber", "cauchy", "none")
@@ -179,10 +180,7 @@ class GraphConfig:
             raise ConfigError(f"wheel_scale must be one of {WHEEL_SCALE_MODES}, got {self.wheel_scale!r}")
         if self.range_scale not in RANGE_SCALE_MODES:
             raise ConfigError(f"range_scale must be one of {RANGE_SCALE_MODES}, got {self.range_scale!r}")
-        for f in fields(self):
-            value = getattr(self, f.name)
-            if isinstance(value, float) and not (math.isfinite(value) and value > 0) and f.name != "max_delay_s":
-                raise ConfigError(f"{f.name} must be a positive finite number, got {value}")
+        require_positive_numbers(self, skip=("max_delay_s",))
         if not (math.isfinite(self.max_delay_s) and self.max_delay_s >= 0):
             raise ConfigError(f"max_delay_s must be >= 0, got {self.max_delay_s}")
         if self.fixed_lag_s <= self.max_delay_s + 2.0 / self.keyframe_rate_hz:
