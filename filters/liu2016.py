@@ -53,6 +53,7 @@ from filters.models import kinematic as km
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
+from graphpos.estimator import require_positive_numbers
 
 SUBSYSTEMS = ("rsu", "gnss", "dr")
 _POS = [km.XE, km.XN]
@@ -125,6 +126,9 @@ class Liu2016Config:
     init_accel_sigma_mps2: float = 1.0
 
     def __post_init__(self) -> None:
+        require_positive_numbers(self, skip=("dr_min_speed_mps",))
+        if self.dr_min_speed_mps < 0:
+            raise ConfigError(f"dr_min_speed_mps must be >= 0, got {self.dr_min_speed_mps}")
         bad = [s for s in self.subsystems if s not in SUBSYSTEMS]
         if not self.subsystems or bad:
             raise ConfigError(f"liu2016 subsystems must be chosen from {SUBSYSTEMS}, got {self.subsystems}")

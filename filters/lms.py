@@ -53,6 +53,7 @@ from filters.base import FilterEstimator
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError
 from graphpos.estimate import OutputRow
+from graphpos.estimator import require_positive_numbers
 
 
 @dataclass
@@ -104,6 +105,9 @@ class LmsFederatedConfig:
     max_isolated_tags: int = 2
 
     def __post_init__(self) -> None:
+        require_positive_numbers(self, skip=("global_step",))
+        if not 0.0 < self.consistency_probability <= 1.0:
+            raise ConfigError(f"consistency_probability must lie in (0, 1], got {self.consistency_probability}")
         if self.local_taps < 1 or self.global_taps < 1:
             raise ConfigError("LMS filters need at least one tap")
         if not (0 < self.local_step < 2 and 0 <= self.global_step < 2):

@@ -34,6 +34,7 @@ from typing import NamedTuple
 import numpy as np
 
 from filters.models.angles import wrap_angle
+from graphpos.errors import ConfigError
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,12 @@ class FadingConfig:
     enabled: bool = True
     forgetting_factor: float = 0.95
     softening_factor: float = 1.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.forgetting_factor <= 1.0:
+            raise ConfigError(f"forgetting_factor must lie in (0, 1], got {self.forgetting_factor}")
+        if not self.softening_factor >= 1.0:
+            raise ConfigError(f"softening_factor must be >= 1, got {self.softening_factor}")
 
 
 class FadingMemory:

@@ -69,6 +69,10 @@ def test_values_take_the_field_type():
         ("fukf", "beta_few_tags", "0.5,0.6", "sum to 1"),
         ("rfid-ekf", "update_iterations", "0", "at least 1"),
         ("multilateration", "min_tags", "2", "min_tags >= 3"),
+        ("imm-stekf", "ca_accel_noise_mps2", "0", "ca_accel_noise_mps2 must be a positive"),
+        ("imm-stekf", "fading.forgetting_factor", "1.5", "forgetting_factor must lie in"),
+        ("imm-stekf", "lms.consistency_probability", "2", "consistency_probability must lie in"),
+        ("fkf", "odometer_sigma_mps", "-0.3", "odometer_sigma_mps must be a positive"),
     ],
 )
 def test_bad_values_are_config_errors(name, key, text, message):
