@@ -118,9 +118,9 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError("'truth' is not an estimator name (truth.csv is always written)")
     if args.out_dir.exists() and not args.out_dir.is_dir():
         raise FileFormatError(f"{args.out_dir}: exists and is not a folder")
+    settings = estimator_settings(args, names)  # before reading a long drive
     drive = read_drive(args.drive)
     range_model = load_range_model(args.range_model) if args.range_model else None
-    settings = estimator_settings(args, names)
     estimators = [make_estimator(n, settings=settings.get(n), layout=args.layout, range_model=range_model) for n in names]
     with naming_file(args.drive):
         if args.layout:
