@@ -275,7 +275,7 @@ def fault_study(scenario: str = DEFAULT_SCENARIO, estimators: list[str] | None =
     ConfigError
         Unknown scenario or estimator, or fewer than one seed.
     """
-    from graphpos.registry import estimator_classes
+    from graphpos.registry import estimator_classes, require_known
     from graphpos.sim import SCENARIOS
 
     started = time.perf_counter()
@@ -283,11 +283,8 @@ def fault_study(scenario: str = DEFAULT_SCENARIO, estimators: list[str] | None =
         raise ConfigError(f"unknown scenario '{scenario}' (known: {', '.join(SCENARIOS)})")
     if seeds < 1:
         raise ConfigError(f"--seeds must be at least 1, got {seeds}")
-    known = list(estimator_classes())
-    names = list(estimators or known)
-    unknown = [n for n in names if n not in known]
-    if unknown:
-        raise ConfigError(f"unknown estimator(s) {', '.join(unknown)} (known: {', '.join(known)})")
+    names = list(estimators or estimator_classes())
+    require_known(names)
     specs = study_faults(load_drive(fault_source(scenario, 0, duration_s, None, None)))
     applicable = [k for k, s in specs.items() if isinstance(s, dict)]
     jobs = [(seed, fault, est) for seed in range(seeds) for fault in [None, *applicable] for est in names]

@@ -29,6 +29,7 @@ drives of the papers' specification and stated in the config docstrings.
 from __future__ import annotations
 
 import math
+from typing import ClassVar
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -115,9 +116,11 @@ class VehicleFilterConfig:
     range_gate_probability: float = 0.999
     range_sigma_scale: float = 1.2
 
+    #: Float fields exempt from the positivity check (none here).
+    _signed_fields: ClassVar[tuple[str, ...]] = ()
+
     def __post_init__(self) -> None:
-        # the unscented transform's beta and kappa (FukfConfig) may be zero or negative
-        require_positive_numbers(self, skip=("ukf_beta", "ukf_kappa"))
+        require_positive_numbers(self, skip=self._signed_fields)
         require_probability(self.range_gate_probability)
 
 
@@ -198,6 +201,9 @@ class FukfConfig(VehicleFilterConfig):
     ukf_alpha: float = 0.3
     ukf_beta: float = 2.0
     ukf_kappa: float = 0.0
+
+    #: The unscented transform's beta and kappa may be zero or negative.
+    _signed_fields: ClassVar[tuple[str, ...]] = ("ukf_beta", "ukf_kappa")
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -25,16 +25,22 @@ def estimator_classes() -> dict[str, type[Estimator]]:
     return classes
 
 
+def require_known(names: list[str]) -> dict[str, type[Estimator]]:
+    """The classes of ``names``; a ConfigError naming the unknown ones and the known."""
+    classes = estimator_classes()
+    unknown = [n for n in names if n not in classes]
+    if unknown:
+        raise ConfigError("unknown estimator " + ", ".join(f"'{n}'" for n in unknown) + f" (known: {', '.join(classes)})")
+    return {n: classes[n] for n in names}
+
+
 def make_estimator(name: str, settings: dict[str, str] | None = None, **kwargs) -> Estimator:
     """Build an estimator by name; a clear error for an unknown one.
 
     ``settings``: ``{key: value text}`` applied to its default config
     (:func:`graphpos.settings.apply_settings`).
     """
-    classes = estimator_classes()
-    if name not in classes:
-        raise ConfigError(f"unknown estimator '{name}' (known: {', '.join(classes)})")
-    cls = classes[name]
+    cls = require_known([name])[name]
     if settings:
         from graphpos.settings import apply_settings
 

@@ -58,7 +58,7 @@ def add_settings_options(p: argparse.ArgumentParser) -> None:
 
 def estimator_settings(args: argparse.Namespace, names: list[str]) -> dict[str, dict[str, str]]:
     """``{estimator name: {key: value text}}`` from ``--set`` and ``--final``."""
-    from graphpos.registry import estimator_classes
+    from graphpos.registry import require_known
     from graphpos.settings import parse_settings
 
     items = list(args.settings)
@@ -66,11 +66,8 @@ def estimator_settings(args: argparse.Namespace, names: list[str]) -> dict[str, 
         if "graph-isam2" not in names:
             raise ConfigError("--final applies to graph-isam2, which is not selected")
         items.append("graph-isam2.final=true")
-    classes = estimator_classes()
-    unknown = [n for n in names if n not in classes]
-    if unknown:
-        raise ConfigError(f"unknown estimator(s) {', '.join(unknown)} (known: {', '.join(classes)})")
-    return parse_settings(items, names, {n: classes[n].default_config() for n in names})
+    classes = require_known(names)
+    return parse_settings(items, names, {n: cls.default_config() for n, cls in classes.items()})
 
 
 def _estimators(args: argparse.Namespace) -> int:
