@@ -111,6 +111,22 @@ CHANNEL_SPECS: dict[str, tuple[ColumnSpec, ...]] = {
 CHANNEL_NAMES: tuple[str, ...] = tuple(CHANNEL_SPECS)
 
 
+def truth_from_poses(t_s: np.ndarray, east_m: np.ndarray, north_m: np.ndarray, yaw_rad: np.ndarray) -> "Channel":
+    """A ``truth`` channel from recorded poses (an importer's reference).
+
+    Velocities by differentiating the positions (``numpy.gradient``, second
+    order, uneven spacing); yaw unwrapped; yaw rate and accelerations NaN.
+    """
+    t = np.asarray(t_s, dtype=np.float64)
+    east, north = np.asarray(east_m, dtype=np.float64), np.asarray(north_m, dtype=np.float64)
+    return Channel("truth", {"t_s": t, "east_m": east, "north_m": north, "v_east_mps": np.gradient(east, t),
+                             "v_north_mps": np.gradient(north, t), "yaw_rad": np.unwrap(np.asarray(yaw_rad, dtype=np.float64))})
+
+#: Columns computed from the truth (simulation, or an importer with truth):
+#: for scoring only, removed by :meth:`Drive.without_truth`.
+TRUTH_DERIVED_COLUMNS: dict[str, tuple[str, ...]] = {"rfid": ("true_range_m",)}
+
+
 class Channel:
     """Columnar, time-sorted samples of one sensor.
 
@@ -515,6 +531,22 @@ class Drive:
     def replace(self, **changes: Any) -> "Drive":
         """A copy with some fields replaced (validated again)."""
         return dataclasses.replace(self, **changes)
+
+    def without_truth(self) -> "Drive":
+        """The drive as an estimator may see it: no ``truth`` channel and no truth-derived column.
+
+        Truth is for scoring only (issue 13): every command hands estimators
+        this view and scores their output against the full drive afterwards.
+        Removed: the ``truth`` channel and each column listed in
+        :data:`TRUTH_DERIVED_COLUMNS` (set to NaN).
+        """
+        channels = {}
+        for name, ch in self.channels.items():
+            if name == "truth":
+                continue
+            derived = [c for c in TRUTH_DERIVED_COLUMNS.get(name, ()) if np.isfinite(ch[c]).any()]
+            channels[name] = ch.replace(**{c: np.full(len(ch), np.nan) for c in derived}) if derived else ch
+        return dataclasses.replace(self, channels=channels)
 
     def with_layout(self, layout: str) -> "Drive":
         """The same drive hearing only the tags of a named layout.

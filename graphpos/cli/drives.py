@@ -1,9 +1,10 @@
-"""Commands ``info`` and ``import plaza`` (drive files, ``graphpos.io``)."""
+"""Commands ``info``, ``import plaza`` and ``import mrclam`` (drive files, ``graphpos.io``)."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -18,7 +19,8 @@ def register(sub) -> None:
     p.add_argument("file", type=Path, metavar="FILE.mcap", help="drive file")
     p.add_argument("--json", action="store_true",
                    help="print JSON: duration_s, channels {name: {count, rate_hz, start_s, end_s}}, "
-                        "tags {count, layouts}, rsus, windows, origin, params, estimates")
+                        "tags {count, layouts}, rsus, windows, origin, params, estimates, and with truth "
+                        "truth_checks {heading, ranges, odometry, turn}")
     p.set_defaults(func=_info)
 
     group = sub.add_parser("import", help="import a recorded dataset as a drive file",
@@ -34,6 +36,18 @@ def register(sub) -> None:
                    help="geodetic origin of the dataset's x/y frame in degrees (and metres), for map views "
                         "(default: the CMU campus, approximately)")
     p.set_defaults(func=_import_plaza)
+    p = formats.add_parser("mrclam", help="one robot of a UTIAS MRCLAM dataset (folder of .dat files)",
+                           description="Landmarks -> tags, camera ranges to landmarks -> rfid range_m "
+                                       "(uncorrected; sightings of robots dropped), odometry -> wheel speed and "
+                                       "yaw rate, Vicon -> truth; times stay Unix seconds. Conventions: "
+                                       "graphpos/io/mrclam.py.")
+    p.add_argument("directory", type=Path, metavar="DIR", help="the dataset folder (e.g. MRCLAM_Dataset6)")
+    p.add_argument("--robot", type=int, required=True, metavar="N", help="robot number, 1-5")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    p.add_argument("--origin", type=_origin, default=None, metavar="LAT,LON[,ALT]",
+                   help="geodetic origin of the dataset's x/y frame in degrees (and metres), for map views "
+                        "(default: UTIAS, Toronto, approximately)")
+    p.set_defaults(func=_import_mrclam)
 
 
 def _origin(text: str):
@@ -56,8 +70,13 @@ def _rate_hz(t_s: np.ndarray) -> float | None:
 
 
 def drive_summary(path: Path) -> dict[str, Any]:
-    """What ``info --json`` prints for a drive file."""
+    """What ``info --json`` prints for a drive file.
+
+    With a ``truth`` channel it has ``truth_checks``: the drive's sensors and
+    truth checked against each other (:func:`graphpos.io.checks.truth_checks`).
+    """
     from graphpos.io import read_mcap
+    from graphpos.io.checks import truth_checks
 
     drive, estimates = read_mcap(path)
     channels = {
@@ -69,7 +88,7 @@ def drive_summary(path: Path) -> dict[str, Any]:
         }
         for name, ch in drive.channels.items()
     }
-    return {
+    summary = {
         "file": str(path),
         "name": drive.name,
         "duration_s": drive.duration_s,
@@ -83,6 +102,10 @@ def drive_summary(path: Path) -> dict[str, Any]:
         "params": drive.params,
         "estimates": {e.name: {"count": len(e), "rate_hz": e.rate_hz if np.isfinite(e.rate_hz) else None} for e in estimates},
     }
+    checks = truth_checks(drive)
+    if checks:
+        summary["truth_checks"] = checks
+    return summary
 
 
 def _num(value: float | None, fmt: str) -> str:
@@ -110,6 +133,12 @@ def _info(args: argparse.Namespace) -> int:
     print(f"params    {json.dumps(info['params'])}")
     if info["estimates"]:
         print("estimates " + ", ".join(f"{k} ({v['count']} rows)" for k, v in info["estimates"].items()))
+    if info.get("truth_checks"):
+        from graphpos.io.checks import describe_check
+
+        print("truth checks (sensors and truth against each other)")
+        for name, check in info["truth_checks"].items():
+            print(f"  {name:<10}{check['verdict']}: {describe_check(name, check)}")
     return 0
 
 
@@ -121,4 +150,24 @@ def _import_plaza(args: argparse.Namespace) -> int:
     write_drive(args.output, drive)
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
     print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} beacons ({counts})")
+    for note in drive.params.get("import_notes", []):
+        print(f"graphpos import: warning: {note}", file=sys.stderr)
+    return 0
+
+
+def _import_mrclam(args: argparse.Namespace) -> int:
+    from graphpos.io import write_drive
+    from graphpos.io.mrclam import import_mrclam
+
+    if args.origin is None:
+        drive = import_mrclam(args.directory, args.robot)
+    else:
+        drive = import_mrclam(args.directory, args.robot, origin=args.origin)
+    write_drive(args.output, drive)
+    counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
+    p = drive.params
+    dropped = (f"dropped {p['sightings_of_robots_dropped']} robot sightings, "
+               f"{p['sightings_of_unknown_barcodes_dropped'] + p['sightings_of_unsurveyed_subjects_dropped']} "
+               f"unknown, {p['odometry_repeated_stamps_dropped']} repeated odometry stamps")
+    print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} landmarks ({counts}); {dropped}")
     return 0

@@ -8,7 +8,15 @@ Plaza1 (see ``tests/io/test_plaza.py``):
     the direction of motion ``atan2(dy, dx)`` matches it within about 0.016
     rad (median) wherever the robot moves. Taking x as east and y as north,
     it is the project's yaw. It is stored wrapped (Plaza1: within
-    [-pi/2, 3pi/2), with five 2pi jumps); it is unwrapped here.
+    [-pi/2, 3pi/2), with five 2pi jumps); it is unwrapped here. Other runs
+    do not all follow that convention (one has a heading 180 deg from the
+    direction of motion), so the importer checks it
+    (:func:`graphpos.io.checks.heading_check`): a heading about 180 deg
+    off is corrected (pi added; its rate, and so ``DR``, is unchanged) and
+    one that drifts from the motion or is otherwise inconsistent with it is
+    kept as recorded; either way a note goes into the drive's
+    ``params["import_notes"]`` (``graphpos import plaza`` prints it as a
+    warning). Plaza1 passes the check and is left alone.
 ``DR`` (N-1, 3) ``[t_s, distance_m, heading_change_rad]``
     Odometry increments from ``GT`` row k to row k+1, stamped with the time
     of row k+1. The heading changes are exactly the differences of ``GT``'s
@@ -33,7 +41,8 @@ kept as they are.
 
 The drive has:
 
-- ``truth``: ``GT`` positions and unwrapped heading; velocity by
+- ``truth``: ``GT`` positions and unwrapped heading (corrected when
+  reversed, above); velocity by
   differentiating the positions (``numpy.gradient``, second order, uneven
   spacing); yaw rate and accelerations NaN.
 - ``wheel``: ``speed_mps = distance / dt`` of each ``DR`` row;
@@ -47,7 +56,9 @@ The drive has:
   truth position (interpolated at the reading time; NaN outside ``GT``'s
   time span) to the beacon — truth, for evaluating ranging;
 - ``tags``: one per ``TL`` row, ``wall_side`` 0, ``group`` -1, layout
-  ``dense`` only.
+  ``dense`` only;
+- ``params["import_notes"]``: what the importer found wrong and did about
+  it, one sentence each (absent when nothing was).
 
 The geodetic origin defaults to an approximate position of the CMU campus
 (the dataset has no geodetic reference); it only places the track on a map.
@@ -62,8 +73,9 @@ from pathlib import Path
 import numpy as np
 import scipy.io
 
-from graphpos.drive import Channel, Drive, GeoOrigin, TagMap
+from graphpos.drive import Channel, Drive, GeoOrigin, TagMap, truth_from_poses
 from graphpos.errors import DriveError, FileFormatError
+from graphpos.io.checks import heading_check
 from graphpos.io.files import read_input
 
 #: Approximate geodetic position of the Plaza datasets (CMU campus, Pittsburgh).
@@ -128,21 +140,32 @@ def _truth(gt: np.ndarray, path: Path) -> Channel:
         row = int(np.argmax(~(np.diff(t) > 0))) + 1
         raise FileFormatError(f"{path}: array 'GT' row {row}: time {float(t[row])!r} does not increase")
     east, north = gt[:, 1], gt[:, 2]
-    n = t.size
-    return Channel(
-        "truth",
-        {
-            "t_s": t,
-            "east_m": east,
-            "north_m": north,
-            "v_east_mps": np.gradient(east, t),
-            "v_north_mps": np.gradient(north, t),
-            "yaw_rad": np.unwrap(gt[:, 3]),
-            "yaw_rate_radps": np.full(n, np.nan),
-            "accel_x_mps2": np.full(n, np.nan),
-            "accel_y_mps2": np.full(n, np.nan),
-        },
+    return truth_from_poses(t, east, north, gt[:, 3])
+
+
+def _checked_heading(truth: Channel) -> tuple[Channel, list[str]]:
+    """The truth with a reversed heading corrected, and notes on what was found.
+
+    A heading about 180 deg from the direction of motion gets pi added; one
+    that drifts away from it or is otherwise inconsistent with it is kept,
+    with a note.
+    """
+    check = heading_check(truth)
+    found = (
+        f"median {check['median_abs_diff_deg']:.1f} deg off, {100 * (check['share_over_90deg'] or 0.0):.1f} % "
+        f"of {check['moving_samples']} moving samples over 90 deg"
     )
+    if check["verdict"] == "reversed":
+        note = f"truth heading (GT column 4) was 180 deg from the direction of motion ({found}); corrected (pi added)"
+        return truth.replace(yaw_rad=truth.yaw_rad + np.pi), [note]
+    if check["verdict"] == "drifting":
+        return truth, [
+            f"truth heading (GT column 4) drifts from the direction of motion by {check['drift_dps']:+.3f} deg/s "
+            f"({check['drift_deg']:+.0f} deg over the drive; integrated from a biased gyro?); kept as recorded"
+        ]
+    if check["verdict"] == "inconsistent":
+        return truth, [f"truth heading (GT column 4) disagrees with the direction of motion ({found}); kept as recorded"]
+    return truth, []
 
 
 def _true_ranges(t_s: np.ndarray, beacon_xy: np.ndarray, gt: np.ndarray) -> np.ndarray:
@@ -185,7 +208,7 @@ def import_plaza(path: str | os.PathLike, origin: GeoOrigin = PLAZA_ORIGIN) -> D
     td = td[order]
     try:
         tags = TagMap(tl[:, 0], tl[:, 1], tl[:, 2], np.zeros(len(tl)), np.full(len(tl), -1))
-        truth = _truth(gt, path)
+        truth, notes = _checked_heading(_truth(gt, path))
         t_mid, speed, yaw_rate = _rates(dr, path)
         known = np.isin(td[:, 2], tags.tag_id)
         if not known.all():
@@ -212,6 +235,8 @@ def import_plaza(path: str | os.PathLike, origin: GeoOrigin = PLAZA_ORIGIN) -> D
             "range_rows_reordered": int(np.count_nonzero(order != np.arange(order.size))),
             "true_range_m": "distance from GT (linearly interpolated at the reading time) to the beacon; truth, not a sensor",
         }
+        if notes:
+            params["import_notes"] = notes
         return Drive(name=path.stem, channels=channels, tags=tags, origin=origin, params=params)
     except DriveError as exc:
         # name the source array and its row (rfid rows were sorted by time)

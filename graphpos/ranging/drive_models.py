@@ -19,6 +19,7 @@ from typing import Any
 import numpy as np
 
 from graphpos.drive import Drive
+from graphpos.io.checks import true_ranges_m as truth_distances_m
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.ranging.calibration_data import simulate_collection
 from graphpos.ranging.lssvm import LssvmRangeModel
@@ -87,9 +88,8 @@ def default_range_model(drive: Drive) -> RangeModel:
 def true_ranges_m(drive: Drive) -> np.ndarray:
     """True reader-tag distance of every RFID reading.
 
-    ``rfid.true_range_m`` where given, else computed from the ``truth``
-    trajectory (interpolated at the reading time, NaN outside it) and the tag
-    map.
+    :func:`graphpos.io.checks.true_ranges_m`, with errors for a drive that
+    has no readings or no truth.
 
     Raises
     ------
@@ -100,17 +100,7 @@ def true_ranges_m(drive: Drive) -> np.ndarray:
     """
     if not drive.has("rfid"):
         raise MissingChannelError(f"drive '{drive.name}' has no RFID readings to fit a range model to")
-    rfid = drive.rfid
-    true_m = np.array(rfid.true_range_m, dtype=np.float64)
-    missing = ~np.isfinite(true_m)
-    if missing.any() and drive.has("truth"):
-        truth = drive.truth
-        t = rfid.t_s[missing]
-        inside = (t >= truth.t_s[0]) & (t <= truth.t_s[-1])
-        east = np.interp(t, truth.t_s, truth.east_m)
-        north = np.interp(t, truth.t_s, truth.north_m)
-        tags = drive.tags.positions(rfid.tag_id[missing].astype(np.int64))
-        true_m[missing] = np.where(inside, np.hypot(east - tags[:, 0], north - tags[:, 1]), np.nan)
+    true_m = truth_distances_m(drive)
     if not np.isfinite(true_m).any():
         raise ConfigError(
             f"drive '{drive.name}' has no truth: neither true ranges (rfid.true_range_m) nor a truth trajectory"

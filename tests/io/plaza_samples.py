@@ -34,3 +34,16 @@ def synthetic_plaza(path: Path, drop: str | None = None, **replace: np.ndarray) 
         arrays.pop(drop)
     scipy.io.savemat(path, arrays)
     return arrays
+
+
+def turned_heading_copy(source: Path, path: Path, turn_rad: float = np.pi) -> dict[str, np.ndarray]:
+    """Write a copy of the Plaza .mat ``source`` whose GT heading is turned by
+    ``turn_rad`` (wrapped into [0, 2pi), as a recording would store it);
+    every other array as it is. Returns the arrays written."""
+    mat = scipy.io.loadmat(source)
+    arrays = {k: v for k, v in mat.items() if not k.startswith("__")}
+    gt = arrays["GT"].astype(np.float64).copy()
+    gt[:, 3] = np.mod(gt[:, 3] + turn_rad, 2 * np.pi)
+    arrays["GT"] = gt
+    scipy.io.savemat(path, arrays)
+    return arrays
