@@ -9,6 +9,7 @@ from pathlib import Path
 
 from graphpos.errors import ConfigError, FileFormatError, naming_file
 from graphpos.sim.faults import FAULTS
+from graphpos.sim.params import PROFILES
 
 
 def register(sub) -> None:
@@ -18,6 +19,8 @@ def register(sub) -> None:
     p.add_argument("--json", action="store_true", help="print a JSON list of {name, summary, patterns, default_pattern, default_duration_s}")
     p.add_argument("--params", metavar="NAME",
                    help="print a scenario's default parameters as TOML (every key a --config file may set)")
+    p.add_argument("--profile", metavar="PROFILE", default=None,
+                   help="with --params: the parameters under this sensor profile (" + ", ".join(PROFILES) + "; default ideal)")
     p.set_defaults(func=_scenarios)
 
     p = sub.add_parser("simulate", help="simulate a drive into an MCAP file",
@@ -30,6 +33,10 @@ def register(sub) -> None:
     p.add_argument("--duration", type=float, default=None, metavar="S",
                    help="drive length in seconds (default: one pass; longer drives go out and back)")
     p.add_argument("--config", type=Path, metavar="F", help="TOML file of parameter overrides")
+    p.add_argument("--profile", metavar="PROFILE", default=None,
+                   help="sensor profile: " + ", ".join(PROFILES) + " (default: the config file's `profile`, else ideal). "
+                        "realistic adds per-drive gyro turn-on bias, yaw-rate and wheel scale errors, RFID ranges "
+                        "5-8 %% long and range outliers")
     p.add_argument("--rfid-latency", metavar="S|LO:HI",
                    help="delay of RFID and RSU readings in seconds: fixed S, or uniform in LO:HI")
     p.add_argument("--fault", action="append", default=[], metavar="KIND[:KEY=VALUE...]",
@@ -48,8 +55,12 @@ def _scenarios(args: argparse.Namespace) -> int:
     if args.params is not None:
         if args.params not in SCENARIOS:
             raise ConfigError(f"unknown scenario '{args.params}' (known: {', '.join(SCENARIOS)})")
-        print(f"# graphpos simulate {args.params}: default parameters\n" + to_toml(default_params(args.params)), end="")
+        profile = "ideal" if args.profile is None else args.profile
+        params = default_params(args.params, profile)
+        print(f"# graphpos simulate {args.params}: default parameters (profile {profile})\n" + to_toml(params), end="")
         return 0
+    if args.profile is not None:
+        raise ConfigError("--profile goes with --params NAME")
     rows = [s.to_dict() for s in SCENARIOS.values()]
     if args.json:
         print(json.dumps(rows, indent=1, ensure_ascii=False))
@@ -90,9 +101,9 @@ def parse_fault(text: str) -> tuple[str, dict[str, float | str]]:
 
 def _simulate(args: argparse.Namespace) -> int:
     from graphpos.io import write_drive
-    from graphpos.sim import SCENARIOS, default_params, load_config, simulate
+    from graphpos.sim import SCENARIOS, load_config, simulate
     from graphpos.sim.faults import check_faults
-    from graphpos.sim.params import apply_overrides, check_params
+    from graphpos.sim.params import resolve_params
 
     folder = args.output.resolve().parent
     if not folder.is_dir():
@@ -108,7 +119,7 @@ def _simulate(args: argparse.Namespace) -> int:
     if args.config is not None and args.scenario in SCENARIOS:
         # The file's values are checked here, so that an error names the file.
         with naming_file(args.config):
-            check_params(apply_overrides(default_params(args.scenario), overrides))
+            resolve_params(args.scenario, overrides, args.profile)
             check_faults(faults, args.duration or SCENARIOS[args.scenario].default_duration_s)
     for text in args.fault:
         kind, spec = parse_fault(text)
@@ -116,7 +127,7 @@ def _simulate(args: argparse.Namespace) -> int:
         faults[kind] = spec if before is None else (before if isinstance(before, list) else [before]) + [spec]
     latency = parse_latency(args.rfid_latency) if args.rfid_latency is not None else None
     drive = simulate(args.scenario, pattern=args.pattern, seed=args.seed, duration_s=args.duration,
-                     overrides=overrides, rfid_latency_s=latency, faults=faults or None)
+                     overrides=overrides, rfid_latency_s=latency, faults=faults or None, profile=args.profile)
     write_drive(args.output, drive)
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
     print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s ({counts})")

@@ -9,7 +9,8 @@ Public API
   (:mod:`graphpos.sim.faults`);
 - :func:`load_config`: read a TOML parameter file for ``overrides``;
 - :func:`default_params`: a scenario's full parameter dict (the papers'
-  values where they give one), i.e. every key a config file may set.
+  values where they give one) under a sensor profile, i.e. every key a
+  config file may set.
 
 Scenarios
 ---------
@@ -25,10 +26,20 @@ long-tunnel            3 km straight tunnel at 80 km/h, 200 m approaches
                        with GNSS; tags every 6 m or in groups every 30 m.
 =====================  =====================================================
 
-The paper-* scenarios have no GNSS channel (the papers' DGPS was the
-reference, i.e. our truth). Channels: ``truth`` (100 Hz), ``imu`` (100 Hz),
-``wheel`` (100 Hz), ``compass`` (10 Hz), and ``rfid`` (1 Hz; tunnels with
-tags), ``rsu`` and ``gnss`` (1 Hz) where the scenario has them.
+The papers' DGPS was their reference, i.e. our truth; the paper-* scenarios
+carry only a short DGPS-grade ``gnss`` channel on the approach before the
+tunnel (5 Hz, 0.4 m, the first 5 s; parameters ``gnss_approach``), from which
+the papers start every filter (song2016 §6). Channels: ``truth`` (100 Hz),
+``imu`` (100 Hz), ``wheel`` (100 Hz), ``compass`` (10 Hz), and ``rfid`` (1 Hz;
+tunnels with tags), ``rsu`` and ``gnss`` (1 Hz) where the scenario has them.
+
+Sensor profiles
+---------------
+``simulate(..., profile=...)`` / ``graphpos simulate --profile``: ``ideal``
+(the default; the sensor models above) or ``realistic`` (adds, drawn per
+drive, a gyro turn-on bias, yaw-rate and wheel-speed scale errors, RFID
+ranges reported 5-8 % long and gross range outliers). See
+:mod:`graphpos.sim.params`.
 
 Geometry
 --------

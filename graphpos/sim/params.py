@@ -8,6 +8,29 @@ naming the key and the valid choices.
 
 Where the papers give a number it is used and cited; where they are silent
 the value is the project's choice, marked "(ours)".
+
+Sensor profiles
+---------------
+A profile is a named set of parameter values applied on top of a scenario's
+defaults and below the user's overrides (:data:`PROFILES`). The top-level
+parameter ``profile`` names it; ``simulate(profile=...)`` and ``graphpos
+simulate --profile`` choose it, and so does ``profile = "..."`` in a
+``--config`` file (the argument wins over the file). Every value a profile
+sets stays an ordinary parameter, so a config file can change one term of a
+profile and keep the others.
+
+``ideal`` (the default)
+    The sensor models as they always were: white noise, Gauss-Markov IMU
+    biases, a 1 % wheel scale error, an RSS-only RFID radio. Every error term
+    below is zero and the radio reports no range.
+``realistic``
+    Adds the error classes that measured real drives show, each drawn once
+    per drive from the seed (uniform within the bounds given in
+    :data:`PROFILES`, from a random stream of its own, so the other sensors'
+    samples stay those of the ``ideal`` drive): a gyro turn-on bias, a yaw-rate
+    scale error, a wheel-speed scale error, RFID ranges that read long, and
+    gross positive range outliers. The drawn values are recorded in
+    ``drive.params["realised"]``.
 """
 
 from __future__ import annotations
@@ -28,6 +51,8 @@ MAX_DURATION_S = 86400.0
 
 #: Sensor and motion parameters shared by every scenario.
 _COMMON: dict[str, Any] = {
+    # The sensor profile (see PROFILES and the module doc).
+    "profile": "ideal",
     # song2016 §6.1 / song2014 §5.1: the RSS law of the tunnel environment.
     "rss_environment": "tunnel",
     "motion": {
@@ -49,12 +74,22 @@ _COMMON: dict[str, Any] = {
         "accel_bias_tau_s": 600.0,
         "gyro_bias_sigma_dps": 0.05,
         "gyro_bias_tau_s": 600.0,
+        # Per-drive constant gyro turn-on bias, uniform in +-this (deg/s), on
+        # top of the Gauss-Markov bias; 0 in the ideal profile (see PROFILES).
+        "gyro_turn_on_bias_max_dps": 0.0,
+        # Per-drive yaw-rate scale error s, uniform in +-this: the gyro reads
+        # (1 + s) times the true yaw rate; 0 in the ideal profile.
+        "yaw_rate_scale_error_max": 0.0,
     },
     "wheel": {
         # song2016 §6: 100 Hz. Noise and scale error (ours).
         "rate_hz": 100.0,
         "sigma_mps": 0.05,
         "scale_error_sigma": 0.01,
+        # Per-drive scale error uniform in +-this on top of the Gaussian one
+        # (the reading is truth * (1 + gaussian) * (1 + uniform)); 0 in the
+        # ideal profile (see PROFILES).
+        "scale_error_max": 0.0,
     },
     "compass": {
         # song2016 §6: 10 Hz. Noise (ours) and local disturbances fixed in
@@ -75,6 +110,19 @@ _COMMON: dict[str, Any] = {
         # Occasional wild readings (ours): an extra N(0, outlier_sigma_db).
         "outlier_probability": 0.02,
         "outlier_sigma_db": 10.0,
+        # A ranging radio (ours; like Plaza's UWB) also reports range_m beside
+        # the RSS: range_scale * true distance + N(0, range_sigma_m), with
+        # range_scale drawn per drive, uniform in [range_scale_min,
+        # range_scale_max], and, with range_outlier_probability, a positive
+        # multipath-like excess uniform in [range_outlier_min_m,
+        # range_outlier_max_m]. The ideal profile's radio reports RSS only.
+        "reports_range": False,
+        "range_sigma_m": 0.15,
+        "range_scale_min": 1.0,
+        "range_scale_max": 1.0,
+        "range_outlier_probability": 0.0,
+        "range_outlier_min_m": 2.0,
+        "range_outlier_max_m": 8.0,
     },
     "tags": {
         # song2016 §6.2: both walls every 6 m; §5.1: groups of four (two per
@@ -84,6 +132,18 @@ _COMMON: dict[str, Any] = {
         "group_length_m": 6.0,
     },
 }
+
+#: song2016 §6: every filter starts from DGPS before the tunnel. A short
+#: DGPS-grade fix channel (``gnss`` rows) on the approach of the paper-*
+#: scenarios, from the drive's start for ``duration_s`` seconds and never at
+#: or after the first tunnel entrance, so estimators can start without the
+#: truth. The paper gives neither the rate nor the accuracy (ours): 5 Hz
+#: gives 25 fixes in the 5 s before the portal (enough for a start position
+#: and, at 2 m/s, a heading from the 10 m of track) without pretending that a
+#: receiver's errors are independent at 10 Hz; sigma 0.4 m per axis (about
+#: 0.6 m horizontal RMS, 1.1 m 2DRMS) is code-differential GPS in the open.
+#: White Gaussian noise, reported as sigma_m. ``enabled = false`` removes it.
+_GNSS_APPROACH = {"enabled": True, "rate_hz": 5.0, "sigma_m": 0.4, "duration_s": 5.0}
 
 _PAPER_SPEEDS = {
     # Implied by song2016 Fig. 14 (120 m of tunnel in about 61 s): ~2 m/s.
@@ -105,6 +165,7 @@ _SCENARIO_PARAMS: dict[str, dict[str, Any]] = {
             "lane_width_m": 3.0,
         },
         "motion": dict(_PAPER_SPEEDS),
+        "gnss_approach": dict(_GNSS_APPROACH),
     },
     # song2016 §6.3.3: straight then curve, 6 m wide, 42 tags. The curve's
     # radius is not given (ours: 50 m, 60 m of arc, a 69 degree left bend).
@@ -119,6 +180,7 @@ _SCENARIO_PARAMS: dict[str, dict[str, Any]] = {
             "lane_width_m": 3.0,
         },
         "motion": dict(_PAPER_SPEEDS),
+        "gnss_approach": dict(_GNSS_APPROACH),
     },
     # song2014 §5: 7.5 m wide (two lanes), tags about 6 m apart, straight +
     # curve; comprehensive test 76 s, outside 0-5 s and 70-76 s.
@@ -133,6 +195,7 @@ _SCENARIO_PARAMS: dict[str, dict[str, Any]] = {
             "lane_width_m": 3.75,
         },
         "motion": dict(_PAPER_SPEEDS),
+        "gnss_approach": dict(_GNSS_APPROACH),
     },
     # liu2016 §3: open area (good GNSS), tunnel with 7 RSUs (no GNSS), street
     # beside buildings (multipath GNSS), 20 km/h. Lengths are ours.
@@ -198,6 +261,46 @@ _SCENARIO_PARAMS: dict[str, dict[str, Any]] = {
 }
 
 
+#: Sensor profiles: name -> parameter values applied over a scenario's
+#: defaults (sections a scenario does not have are skipped: no RFID terms on
+#: liu2016's route). The bounds follow measured real drives where one is
+#: cited, else they are ours.
+PROFILES: dict[str, dict[str, Any]] = {
+    # Today's sensor models: no profile error term (the defaults above).
+    "ideal": {},
+    "realistic": {
+        "imu": {
+            # Plaza2's gyro has a -0.3 deg/s bias: uniform in +-0.5 deg/s
+            # covers it with room for a worse unit.
+            "gyro_turn_on_bias_max_dps": 0.5,
+            # MRCLAM's odometry turn rates are 10-30 % off the truth:
+            # uniform in +-30 %.
+            "yaw_rate_scale_error_max": 0.30,
+        },
+        "wheel": {
+            # An uncalibrated wheel radius (tyre pressure, wear, load) puts
+            # odometry speed several per cent off (ours: uniform in +-10 %,
+            # beside the ideal profile's 1 % Gaussian).
+            "scale_error_max": 0.10,
+        },
+        "rfid": {
+            # Plaza's UWB ranges read 6.9 % long: a ranging radio whose
+            # ranges are 5-8 % long, scale uniform in [1.05, 1.08], with
+            # range_sigma_m (0.15 m, ours) of noise.
+            "reports_range": True,
+            "range_scale_min": 1.05,
+            "range_scale_max": 1.08,
+            # Gross outliers of real ranging radios (a reflected path taken
+            # for the direct one, so always long; ours): 2.5 % of readings
+            # read 2-8 m long.
+            "range_outlier_probability": 0.025,
+            "range_outlier_min_m": 2.0,
+            "range_outlier_max_m": 8.0,
+        },
+    },
+}
+
+
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     out = copy.deepcopy(base)
     for key, value in over.items():
@@ -212,11 +315,67 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 _UNUSED = {"urban-rsu-gnss": ("rfid", "tags")}
 
 
-def default_params(scenario: str) -> dict[str, Any]:
-    """The full default parameter dict of a scenario (a fresh copy)."""
+def _check_profile(profile: Any) -> str:
+    if not isinstance(profile, str) or profile not in PROFILES:
+        raise ConfigError(f"unknown sensor profile {profile!r} (known: {', '.join(PROFILES)})")
+    return profile
+
+
+def _profile_values(params: dict[str, Any], values: dict[str, Any]) -> dict[str, Any]:
+    """The part of a profile's values that a parameter dict has sections for."""
+    return {k: (_profile_values(params[k], v) if isinstance(v, dict) else v) for k, v in values.items() if k in params}
+
+
+def default_params(scenario: str, profile: str = "ideal") -> dict[str, Any]:
+    """The full default parameter dict of a scenario (a fresh copy).
+
+    Parameters
+    ----------
+    scenario : str
+        A key of :data:`graphpos.sim.SCENARIOS`.
+    profile : str
+        A sensor profile of :data:`PROFILES`; its values replace the defaults
+        and ``params["profile"]`` names it.
+
+    Raises
+    ------
+    ConfigError
+        Unknown profile.
+    """
+    _check_profile(profile)
     params = _merge(_COMMON, _SCENARIO_PARAMS[scenario])
     for section in _UNUSED.get(scenario, ()):
         del params[section]
+    params = _merge(params, _profile_values(params, PROFILES[profile]))
+    params["profile"] = profile
+    return params
+
+
+def resolve_params(scenario: str, overrides: dict[str, Any] | None = None, profile: str | None = None) -> dict[str, Any]:
+    """A scenario's checked parameters: defaults, then a profile, then overrides.
+
+    Parameters
+    ----------
+    scenario : str
+    overrides : dict, optional
+        Nested overrides (a ``--config`` file's keys); its top-level
+        ``profile`` names the profile when ``profile`` is not given.
+    profile : str, optional
+        The sensor profile; wins over ``overrides["profile"]``. Default
+        ``"ideal"``.
+
+    Raises
+    ------
+    ConfigError
+        Unknown profile or parameter, or an impossible value.
+    """
+    rest = dict(overrides or {})
+    from_file = rest.pop("profile", None)
+    if from_file is not None:
+        _check_profile(from_file)
+    name = _check_profile(profile if profile is not None else (from_file if from_file is not None else "ideal"))
+    params = apply_overrides(default_params(scenario, name), rest)
+    check_params(params)
     return params
 
 
@@ -241,6 +400,10 @@ def apply_overrides(params: dict[str, Any], overrides: dict[str, Any] | None, wh
             out[key] = apply_overrides(current, value, f"{path}.")
         elif isinstance(value, dict):
             raise ConfigError(f"parameter '{path}' is a value, not a section")
+        elif isinstance(current, bool):
+            if not isinstance(value, bool):
+                raise ConfigError(f"parameter '{path}' must be true or false, got {value!r}")
+            out[key] = value
         elif isinstance(current, str):
             if not isinstance(value, str):
                 raise ConfigError(f"parameter '{path}' must be a string, got {value!r}")
@@ -277,6 +440,14 @@ _BOUNDS: dict[str, tuple[float, float]] = {
     "group_spacing_m": (1.0, 1e4),
     "disturbances_per_km": (0.0, 100.0),
     "count": (0, 1000),
+    # Profile error terms: the yaw rate and wheel speed keep their sign, a
+    # range scale stays within a factor of two of the truth.
+    "gyro_turn_on_bias_max_dps": (0.0, 10.0),
+    "yaw_rate_scale_error_max": (0.0, 0.9),
+    "scale_error_max": (0.0, 0.9),
+    "range_scale_min": (0.5, 2.0),
+    "range_scale_max": (0.5, 2.0),
+    "range_outlier_max_m": (0.0, 1000.0),
 }
 
 #: Longest route accepted (the world's longest road tunnel is 24.5 km).
@@ -285,6 +456,7 @@ MAX_ROUTE_M = 50_000.0
 
 def check_params(params: dict[str, Any]) -> None:
     """Reject impossible or unbuildable values with a message naming the parameter."""
+    _check_profile(params["profile"])
     env = params["rss_environment"]
     if env not in ENVIRONMENTS:
         raise ConfigError(f"unknown rss_environment '{env}' (known: {', '.join(ENVIRONMENTS)})")
@@ -294,7 +466,7 @@ def check_params(params: dict[str, Any]) -> None:
             path = f"{where}{key}"
             if isinstance(value, dict):
                 walk(value, f"{path}.")
-            elif isinstance(value, str):
+            elif isinstance(value, (str, bool)):
                 continue
             elif key in _BOUNDS:
                 lo, hi = _BOUNDS[key]
@@ -328,6 +500,11 @@ def check_params(params: dict[str, Any]) -> None:
             raise ConfigError(f"parameter 'gnss.zones.{name}.tail_dof' must be 0 (Gaussian) or above 2 (finite variance)")
     if "tags" in params and params["tags"]["group_spacing_m"] < params["tags"]["group_length_m"]:
         raise ConfigError("parameter 'tags.group_spacing_m' must be at least tags.group_length_m")
+    if "rfid" in params:
+        r = params["rfid"]
+        for lo, hi in (("range_scale_min", "range_scale_max"), ("range_outlier_min_m", "range_outlier_max_m")):
+            if r[lo] > r[hi]:
+                raise ConfigError(f"parameter 'rfid.{lo}' must not exceed rfid.{hi}")
 
 
 def to_toml(params: dict[str, Any]) -> str:
@@ -335,6 +512,8 @@ def to_toml(params: dict[str, Any]) -> str:
     (values first, then one ``[section]`` per nested dict)."""
 
     def value(v: Any) -> str:
+        if isinstance(v, bool):
+            return "true" if v else "false"
         if isinstance(v, str):
             return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
         return repr(v)

@@ -18,8 +18,13 @@ from graphpos.sim.route import Route
 from graphpos.sim.rss import RssEnvironment
 from graphpos.sim.trajectory import Trajectory
 
-#: Random-stream numbers (never reorder: drives must stay reproducible).
-_STREAMS = {"imu": 1, "wheel": 2, "compass": 3, "rfid": 4, "gnss": 5, "rsu": 6, "latency": 7, "faults": 8}
+#: Random-stream numbers (never reorder: drives must stay reproducible; new
+#: components append a new number). ``profile`` holds the per-drive error
+#: terms of a sensor profile (:func:`profile_errors`), ``rfid_range`` the
+#: noise and outliers of reported RFID ranges, ``gnss_approach`` the DGPS fixes
+#: on a paper scenario's approach.
+_STREAMS = {"imu": 1, "wheel": 2, "compass": 3, "rfid": 4, "gnss": 5, "rsu": 6, "latency": 7, "faults": 8,
+            "profile": 9, "rfid_range": 10, "gnss_approach": 11}
 
 
 def stream(seed: int, name: str) -> np.random.Generator:
@@ -46,8 +51,53 @@ def gauss_markov(n: int, dt_s: float, sigma: float, tau_s: float, rng: np.random
     return out
 
 
-def imu(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Two accelerometers (body x, y) and a yaw gyro: truth + bias + white noise."""
+def profile_errors(params: dict[str, Any], rng: np.random.Generator) -> dict[str, float]:
+    """The per-drive error terms of a sensor profile, drawn once per drive.
+
+    Four unit variates are drawn in a fixed order whatever the bounds (so
+    changing one bound changes only its own term) and scaled to the bounds
+    of :mod:`graphpos.sim.params`; with the ideal profile's zero bounds every
+    term is 0 (the range scale 1).
+
+    Parameters
+    ----------
+    params : dict
+        The drive's parameters (``imu``, ``wheel`` and, where present,
+        ``rfid``).
+    rng : numpy Generator
+        The ``profile`` stream.
+
+    Returns
+    -------
+    dict
+        ``gyro_turn_on_bias_dps`` (uniform in +-``imu.gyro_turn_on_bias_max_dps``),
+        ``yaw_rate_scale_error`` (uniform in +-``imu.yaw_rate_scale_error_max``),
+        ``wheel_profile_scale_error`` (uniform in +-``wheel.scale_error_max``),
+        ``range_scale`` (uniform in [``rfid.range_scale_min``, ``rfid.range_scale_max``]).
+    """
+    u_bias, u_yaw, u_wheel, u_range = rng.uniform(-1.0, 1.0, 4)
+    imu_p, wheel_p = params["imu"], params["wheel"]
+    out = {
+        "gyro_turn_on_bias_dps": float(u_bias * imu_p["gyro_turn_on_bias_max_dps"]) + 0.0,
+        "yaw_rate_scale_error": float(u_yaw * imu_p["yaw_rate_scale_error_max"]) + 0.0,
+        "wheel_profile_scale_error": float(u_wheel * wheel_p["scale_error_max"]) + 0.0,
+        "range_scale": 1.0,
+    }
+    if "rfid" in params:
+        lo, hi = params["rfid"]["range_scale_min"], params["rfid"]["range_scale_max"]
+        out["range_scale"] = float(lo + 0.5 * (u_range + 1.0) * (hi - lo)) if hi > lo else float(lo)
+    return out
+
+
+def imu(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random.Generator,
+        turn_on_bias_dps: float = 0.0, yaw_rate_scale_error: float = 0.0) -> dict[str, np.ndarray]:
+    """Two accelerometers (body x, y) and a yaw gyro: truth + bias + white noise.
+
+    The gyro reads ``(1 + yaw_rate_scale_error) * truth + gauss_markov_bias +
+    turn_on_bias + noise``; the last two arguments are the sensor profile's
+    per-drive terms (:func:`profile_errors`; 0 leaves the samples those of
+    the ideal profile bit for bit).
+    """
     t = sample_times(duration_s, p["rate_hz"])
     st = traj.state(t)
     dt = 1.0 / p["rate_hz"]
@@ -57,17 +107,28 @@ def imu(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random.G
         bias = gauss_markov(n, dt, p["accel_bias_sigma_mps2"], p["accel_bias_tau_s"], rng)
         cols[f"accel_{axis}_mps2"] = st[f"accel_{axis}_mps2"] + bias + rng.standard_normal(n) * p["accel_sigma_mps2"]
     bias = gauss_markov(n, dt, np.deg2rad(p["gyro_bias_sigma_dps"]), p["gyro_bias_tau_s"], rng)
-    cols["yaw_rate_radps"] = st["yaw_rate_radps"] + bias + rng.standard_normal(n) * np.deg2rad(p["gyro_sigma_dps"])
+    rate = st["yaw_rate_radps"] if yaw_rate_scale_error == 0.0 else st["yaw_rate_radps"] * (1.0 + yaw_rate_scale_error)
+    if turn_on_bias_dps != 0.0:
+        bias = bias + np.deg2rad(turn_on_bias_dps)
+    cols["yaw_rate_radps"] = rate + bias + rng.standard_normal(n) * np.deg2rad(p["gyro_sigma_dps"])
     return cols
 
 
-def wheel(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random.Generator) -> tuple[dict[str, np.ndarray], float]:
+def wheel(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random.Generator,
+          profile_scale_error: float = 0.0) -> tuple[dict[str, np.ndarray], float]:
     """Wheel-encoder speed: truth times (1 + scale error) + white noise.
 
-    Returns the columns and the drawn scale error.
+    The scale error is the Gaussian draw (``scale_error_sigma``, from this
+    sensor's stream) combined with the sensor profile's per-drive term
+    ``profile_scale_error`` (:func:`profile_errors`):
+    ``1 + scale = (1 + gaussian) (1 + profile_scale_error)``.
+
+    Returns the columns and the total scale error.
     """
     t = sample_times(duration_s, p["rate_hz"])
-    scale = float(rng.standard_normal() * p["scale_error_sigma"])
+    gaussian = float(rng.standard_normal() * p["scale_error_sigma"])
+    # gaussian + u + gaussian u is exactly the Gaussian draw when u is 0 (ideal profile)
+    scale = gaussian + profile_scale_error + gaussian * profile_scale_error
     speed = traj.state(t)["speed_mps"] * (1.0 + scale) + rng.standard_normal(t.size) * p["sigma_mps"]
     return {"t_s": t, "speed_mps": speed}, scale
 
@@ -95,7 +156,8 @@ def rfid(traj: Trajectory, tags: TagMap, env: RssEnvironment, duration_s: float,
 
     Detection probability is ``1 - read_failure_probability`` within the
     environment's reliable range and falls linearly to zero at its maximum
-    range. The radio reports RSS only, so ``range_m`` is NaN.
+    range. The radio reports RSS only, so ``range_m`` is NaN (a ranging radio
+    adds it: :func:`rfid_ranges`).
     """
     t = sample_times(duration_s, p["rate_hz"])
     empty = {"t_s": np.zeros(0), "tag_id": np.zeros(0), "rss": np.zeros(0), "true_range_m": np.zeros(0)}
@@ -119,6 +181,80 @@ def rfid(traj: Trajectory, tags: TagMap, env: RssEnvironment, duration_s: float,
     wild = rng.random(dist.size) < p["outlier_probability"]
     rss[wild] = np.clip(np.round(rss[wild] + env.units_per_db * rng.standard_normal(int(wild.sum())) * p["outlier_sigma_db"]), 0, 255)
     return {"t_s": t[read], "tag_id": tags.tag_id[tag_idx].astype(np.float64), "rss": rss, "true_range_m": dist}
+
+
+def rfid_ranges(true_range_m: np.ndarray, p: dict[str, Any], range_scale: float,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Ranges reported by a ranging radio (``rfid.reports_range``) for RFID rows.
+
+    The sensor profile's choice for ranges that read long: rather than
+    distort the RSS (whose distance an RSS model would turn into a range
+    with several metres of its own error, burying a 5-8 % scale), the radio
+    reports a range beside its RSS, as Plaza's UWB radio does, and that range
+    reads long::
+
+        range_m = range_scale * true_range_m + N(0, range_sigma_m) [+ excess]
+
+    so an estimator that calibrates a range scale (a
+    :class:`~graphpos.ranging.model.LinearCalibration` fitted to the drive,
+    or a scale state) can recover ``range_scale``. With probability
+    ``range_outlier_probability`` a reading gains a positive multipath-like
+    excess uniform in [``range_outlier_min_m``, ``range_outlier_max_m``] (a
+    reflected path taken for the direct one). The RSS column is left as the
+    RSS law of the true distance gives it (its samples are those of an
+    RSS-only drive). Draws come from the ``rfid_range`` stream, three values
+    per row whatever the parameters. Ranges are clipped at 0.
+
+    Parameters
+    ----------
+    true_range_m : array
+        True reader-tag distance of each RFID row.
+    p : dict
+        The ``rfid`` parameters.
+    range_scale : float
+        The drive's drawn scale (:func:`profile_errors`).
+    rng : numpy Generator
+        The ``rfid_range`` stream.
+
+    Returns
+    -------
+    range_m, outlier : arrays
+        The reported ranges and which rows are outliers.
+    """
+    n = true_range_m.size
+    noise = rng.standard_normal(n) * p["range_sigma_m"]
+    outlier = rng.random(n) < p["range_outlier_probability"]
+    excess = rng.uniform(p["range_outlier_min_m"], p["range_outlier_max_m"], n)
+    range_m = range_scale * true_range_m + noise + np.where(outlier, excess, 0.0)
+    return np.maximum(range_m, 0.0), outlier
+
+
+def gnss_approach(traj: Trajectory, route: Route, duration_s: float, p: dict[str, Any],
+                  rng: np.random.Generator) -> dict[str, np.ndarray]:
+    """DGPS-grade fixes on the approach road before the first tunnel entrance.
+
+    The paper scenarios start every filter from DGPS before the tunnel
+    (song2016 §6): fixes at ``k / rate_hz`` from the drive's start for at
+    most ``duration_s`` seconds (and the drive's length), only while the
+    vehicle is on the road outside the tunnel before it first enters it
+    (the route's zones: no fix from the first sample in the ``tunnel`` zone
+    on, none in a turnaround). Error: white Gaussian, ``sigma_m`` per axis,
+    reported as ``sigma_m``. Empty columns when ``enabled`` is false.
+    """
+    cols = {k: np.zeros(0) for k in ("t_s", "east_m", "north_m", "sigma_m")}
+    if not p["enabled"]:
+        return cols
+    t = sample_times(min(duration_s, p["duration_s"]), p["rate_hz"])
+    st = traj.state(t)
+    outside = (np.array(route.zones)[st["zone"]] != "tunnel") & ~st["turnaround"]
+    keep = np.cumprod(outside).astype(bool)  # up to the first sample inside (or turning)
+    noise = rng.standard_normal((t.size, 2)) * p["sigma_m"]
+    return {
+        "t_s": t[keep],
+        "east_m": st["east_m"][keep] + noise[keep, 0],
+        "north_m": st["north_m"][keep] + noise[keep, 1],
+        "sigma_m": np.full(int(keep.sum()), p["sigma_m"]),
+    }
 
 
 def gnss(traj: Trajectory, route: Route, duration_s: float, p: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarray]:

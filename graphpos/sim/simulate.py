@@ -12,7 +12,7 @@ from graphpos.errors import ConfigError
 from graphpos.sim import sensors
 from graphpos.sim.faults import apply_faults, check_faults
 from graphpos.sim.infrastructure import no_tags, place_rsus, place_tags
-from graphpos.sim.params import MAX_DURATION_S, apply_overrides, check_params, default_params
+from graphpos.sim.params import MAX_DURATION_S, resolve_params
 from graphpos.sim.rss import ENVIRONMENTS
 from graphpos.sim.scenarios import SCENARIOS, trajectory
 from graphpos.sim.trajectory import Trajectory
@@ -73,6 +73,7 @@ def simulate(
     overrides: dict[str, Any] | None = None,
     rfid_latency_s: float | tuple[float, float] | None = None,
     faults: dict[str, Any] | None = None,
+    profile: str | None = None,
 ) -> Drive:
     """Simulate one drive of a scenario.
 
@@ -96,6 +97,25 @@ def simulate(
         Fault kind -> parameters (or a list of them for several episodes);
         see :mod:`graphpos.sim.faults`. Each episode adds a ``fault:<kind>``
         window; the effective parameters are recorded in ``params["faults"]``.
+    profile : str, optional
+        Sensor profile (:data:`graphpos.sim.params.PROFILES`): ``"ideal"``
+        (the default: the sensor models without the profile error terms) or
+        ``"realistic"`` (adds a gyro turn-on bias, yaw-rate and wheel-speed
+        scale errors, RFID ranges that read long and gross range outliers,
+        drawn per drive). Wins over a ``profile`` key in ``overrides``. The
+        profile is recorded in ``params["profile"]``, the drawn terms in
+        ``params["realised"]`` (``gyro_turn_on_bias_dps``,
+        ``yaw_rate_scale_error``, ``wheel_profile_scale_error``,
+        ``wheel_scale_error`` (the total: the wheel reads ``1 +`` it times the
+        truth), ``range_scale``, ``range_outliers`` (RFID ranges given an
+        outlier excess, counted before faults)).
+
+    Notes
+    -----
+    The paper-* scenarios carry a short DGPS ``gnss`` channel on the approach
+    before the tunnel (parameters ``gnss_approach``; see
+    :func:`graphpos.sim.sensors.gnss_approach`), scenarios with a GNSS model
+    (``gnss`` parameters) their own.
 
     Raises
     ------
@@ -114,8 +134,7 @@ def simulate(
     latency = _check_latency(rfid_latency_s)
     if overrides and "faults" in overrides:
         raise ConfigError("'faults' is not a parameter: pass it as simulate(faults=...) (the CLI takes [faults] from --config)")
-    params = apply_overrides(default_params(scenario), overrides)
-    check_params(params)
+    params = resolve_params(scenario, overrides, profile)
 
     traj = trajectory(scenario, pattern, params)
     route = traj.route
@@ -132,17 +151,25 @@ def simulate(
     st = traj.state(t_truth)
     truth = {"t_s": t_truth, **{k: st[k] for k in (
         "east_m", "north_m", "v_east_mps", "v_north_mps", "yaw_rad", "yaw_rate_radps", "accel_x_mps2", "accel_y_mps2")}}
+    errors = sensors.profile_errors(params, sensors.stream(seed, "profile"))
     cols: dict[str, dict[str, np.ndarray]] = {
-        "imu": sensors.imu(traj, duration_s, params["imu"], sensors.stream(seed, "imu")),
+        "imu": sensors.imu(traj, duration_s, params["imu"], sensors.stream(seed, "imu"),
+                           turn_on_bias_dps=errors["gyro_turn_on_bias_dps"], yaw_rate_scale_error=errors["yaw_rate_scale_error"]),
         "compass": sensors.compass(traj, route, duration_s, params["compass"], sensors.stream(seed, "compass")),
     }
-    cols["wheel"], wheel_scale = sensors.wheel(traj, duration_s, params["wheel"], sensors.stream(seed, "wheel"))
+    cols["wheel"], wheel_scale = sensors.wheel(traj, duration_s, params["wheel"], sensors.stream(seed, "wheel"),
+                                               profile_scale_error=errors["wheel_profile_scale_error"])
     latency_rng = sensors.stream(seed, "latency")
     env = ENVIRONMENTS[params["rss_environment"]]
 
     tags = place_tags(route, params["tags"]) if "tags" in params else no_tags()
+    range_outliers = 0
     if "rfid" in params and len(tags):
         cols["rfid"] = sensors.rfid(traj, tags, env, duration_s, params["rfid"], sensors.stream(seed, "rfid"))
+        if params["rfid"]["reports_range"]:
+            cols["rfid"]["range_m"], outlier = sensors.rfid_ranges(
+                cols["rfid"]["true_range_m"], params["rfid"], errors["range_scale"], sensors.stream(seed, "rfid_range"))
+            range_outliers = int(outlier.sum())
         cols["rfid"]["arrival_s"] = sensors.arrival_times(cols["rfid"]["t_s"], latency, latency_rng, per_epoch=True)
     rsus = place_rsus(route, params["rsu"]) if "rsu" in params else RsuMap.empty()
     if len(rsus):
@@ -150,6 +177,8 @@ def simulate(
         cols["rsu"]["arrival_s"] = sensors.arrival_times(cols["rsu"]["t_s"], latency, latency_rng, per_epoch=False)
     if "gnss" in params:
         cols["gnss"] = sensors.gnss(traj, route, duration_s, params["gnss"], sensors.stream(seed, "gnss"))
+    elif "gnss_approach" in params and params["gnss_approach"]["enabled"]:
+        cols["gnss"] = sensors.gnss_approach(traj, route, duration_s, params["gnss_approach"], sensors.stream(seed, "gnss_approach"))
     cols, fault_windows, fault_record = apply_faults(cols, faults, float(t_truth[-1]), seed, tags, env.units_per_db)
     channels = {"truth": Channel("truth", truth), **{name: Channel(name, c) for name, c in cols.items()}}
 
@@ -163,6 +192,8 @@ def simulate(
         **params,
         "realised": {
             "wheel_scale_error": wheel_scale,
+            **errors,
+            "range_outliers": range_outliers,
             "route_length_m": route.length_m,
             "pass_duration_s": traj.first_pass_time_s,
             "lap_duration_s": traj.lap_time_s,

@@ -79,12 +79,15 @@ simulate paper-straight --fault wheel_slip:slip
 simulate paper-straight --fault wheel_slip:grip=1
 simulate paper-straight --fault dead_tags:fraction=7
 simulate paper-straight --config {bad_faults}
+simulate paper-straight --profile nope
 simulate paper-straight -o {no_folder}
 simulate paper-straight -o {a_folder}
 simulate paper-straight -o {read_only}
 simulate
 scenarios --bogus
 scenarios --params nope
+scenarios --params paper-straight --profile nope
+scenarios --profile realistic
 """.strip().splitlines()
 
 
