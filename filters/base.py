@@ -20,9 +20,14 @@ A :class:`FilterEstimator` subclass implements a few handlers
   pre-extracted arrays (the same handlers in the same order as
   ``Estimator.run`` would call them; the tests check both agree).
 
-The initial pose comes from the drive's ``truth`` (else ``gnss``) at the
-first measurement: the papers start every filter from the DGPS position
-before the tunnel.
+Start-up: a filter whose model needs a start state (``needs_start``) feeds
+every measurement to the shared :class:`graphpos.ignition.Ignition` (a start
+pose the user gives, else GNSS/RSU fixes, else ranges with the motion of
+the first seconds) and starts when it gives a
+:class:`~graphpos.ignition.StartState`; until then it outputs nothing. The
+papers start every filter from DGPS before the tunnel (song2016 §6): on the
+simulated paper drives that is the short ``gnss`` channel of the approach.
+The truth is never read.
 """
 
 from __future__ import annotations
@@ -34,9 +39,9 @@ from typing import Any, ClassVar
 import numpy as np
 
 from graphpos.drive import Drive, Measurement
-from graphpos.errors import MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
+from graphpos.ignition import Ignition, IgnitionConfig, StartState
 
 
 #: Columns handed to :meth:`FilterEstimator._on_fix` for each position-fix channel.
@@ -46,36 +51,9 @@ _FIX_CHANNELS = {
 }
 
 
-class InitialPose:
-    """Position, velocity and yaw at the start of a drive, from truth or GNSS.
-
-    Attributes
-    ----------
-    t_s, east_m, north_m, v_east_mps, v_north_mps, yaw_rad : float
-    from_truth : bool
-        False when taken from GNSS (velocity and yaw are then unknown: 0).
-    """
-
-    def __init__(self, drive: Drive, t_s: float):
-        if drive.has("truth"):
-            tr = drive.truth
-            i = int(np.clip(np.searchsorted(tr.t_s, t_s), 0, len(tr) - 1))
-            self.t_s = float(t_s)
-            self.east_m, self.north_m = float(tr.east_m[i]), float(tr.north_m[i])
-            self.v_east_mps, self.v_north_mps = float(tr.v_east_mps[i]), float(tr.v_north_mps[i])
-            self.yaw_rad = float(tr.yaw_rad[i])
-            self.from_truth = True
-        elif drive.has("gnss"):
-            g = drive.gnss
-            i = int(np.clip(np.searchsorted(g.t_s, t_s), 0, len(g) - 1))
-            self.t_s = float(t_s)
-            self.east_m, self.north_m = float(g.east_m[i]), float(g.north_m[i])
-            self.v_east_mps = self.v_north_mps = self.yaw_rad = 0.0
-            self.from_truth = False
-        else:
-            raise MissingChannelError(
-                f"drive '{drive.name}' has neither a truth nor a gnss channel to take the initial pose from"
-            )
+#: Channels every filter that needs a start reads until it has started, to
+#: find its start (ranges, fixes, heading), whether or not its model uses them.
+_START_CHANNELS = ("rfid", "rsu", "gnss", "compass")
 
 
 class FilterEstimator(Estimator):
@@ -86,10 +64,14 @@ class FilterEstimator(Estimator):
     """
 
     output_on_scan: ClassVar[bool] = False
+    #: The model needs a start state from ignition (False: RFID-only
+    #: estimators, which start from their first scan).
+    needs_start: ClassVar[bool] = True
 
     # -- handlers (subclasses) ------------------------------------------------
-    def _init_filter(self, drive: Drive, t0_s: float) -> None:
-        """Set up the filter state at the drive's first measurement time."""
+    def _init_filter(self, drive: Drive, start: StartState | None) -> None:
+        """Set up the filter state at ``start.t_s`` (``needs_start``), or at the
+        first measurement with ``start`` None or the user's pose (RFID-only)."""
 
     def _predict_to(self, t_s: float) -> None:
         """Advance the filter to ``t_s`` (never backwards)."""
@@ -119,42 +101,95 @@ class FilterEstimator(Estimator):
         self._range_model = self._resolve_range_model(drive)
         self._tag_index = {int(t): i for i, t in enumerate(drive.tags.tag_id)}
         self._tag_en = np.column_stack([drive.tags.east_m, drive.tags.north_m])
+        self._rsu_en = {int(i): (float(e), float(n)) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
         self._allowed = set(int(t) for t in drive.tags.layout(self.layout)) if self.layout else None
         self._rows: list[OutputRow] = []
         self._pending: list[dict[str, float]] = []
         self.diagnostics: dict[str, Any] = {"scans": 0, "ranges_used": 0, "ranges_gated": 0, "ranges_unusable": 0, "late_scans": 0}
-        t0 = self._first_time(drive)
-        self._t = t0
-        period = 1.0 / float(getattr(self.config, "output_rate_hz", 10.0))
-        self._period = period
-        self._next_out = math.ceil(t0 / period - 1e-9) * period
+        self._period = 1.0 / float(getattr(self.config, "output_rate_hz", 10.0))
+        self._drive = drive
+        user = self.start_pose(drive)
+        self._ignition = Ignition(self._tag_en, drive.tags.wall_side, user=user, has_wheel=drive.has("wheel"), config=self._ignition_config())
+        self._started = False
+        self._own = set(super().channels_used(drive))
+        self._t = self._first_time(drive)
+        if not self.needs_start:
+            self._begin(self._t, self._ignition.at(self._t))
+
+    def _ignition_config(self) -> IgnitionConfig:
+        """Ignition's settings, with this filter's own compass sigma where its config has one."""
+        sigma = getattr(self.config, "compass_sigma_rad", None)
+        return IgnitionConfig() if sigma is None else IgnitionConfig(compass_sigma_rad=sigma)
+
+    def _begin(self, t0_s: float, start: StartState | None) -> None:
+        """Start the filter at ``t0_s``: output grid from there, state from ``start``."""
+        self._t = t0_s
+        self._next_out = math.ceil(t0_s / self._period - 1e-9) * self._period
         self._n_out = 0
         self._t_grid0 = self._next_out
-        self._init_filter(drive, t0)
+        self._started = True
+        if start is not None:
+            self.diagnostics["start"] = start.describe()
+        self._init_filter(self._drive, start)
+
+    def _ignite(self, state: StartState | None) -> None:
+        if state is not None:
+            self._begin(state.t_s, state)
+
+    def _pre_start(self, kind: str, t_s: float, values: tuple) -> None:
+        """Feed one non-RFID reading to ignition (before the filter has started)."""
+        ig = self._ignition
+        if kind == "imu":
+            state = ig.yaw_rate(t_s, values[2])
+        elif kind == "wheel":
+            state = ig.speed(t_s, values[0])
+        elif kind == "compass":
+            state = ig.compass(t_s, values[0])
+        elif kind == "gnss":
+            state = ig.fix(t_s, *values)
+        elif kind == "rsu":
+            rsu_id, e, n, r, sigma = values
+            if math.isfinite(e) and math.isfinite(n):
+                state = ig.fix(t_s, e, n, sigma)
+            else:
+                state = ig.ranges(t_s, np.array([self._rsu_en[int(rsu_id)]]), np.array([r]), np.array([sigma]))
+        else:
+            return
+        self._ignite(state)
 
     def _resolve_range_model(self, drive: Drive):
-        """The given range model, else the drive's default (built once per drive)."""
-        from graphpos.ranging import default_range_model
-
-        if self.range_model is not None:
-            return self.range_model
-        if getattr(self, "_default_for", None) is not drive:
-            self._default_model, self._default_for = default_range_model(drive), drive
-        return self._default_model
+        """The estimator's range model for this drive (built once per drive)."""
+        if getattr(self, "_model_for", None) is not drive:
+            self._model, self._model_for = self.resolved_range_model(drive), drive
+        return self._model
 
     def _first_time(self, drive: Drive) -> float:
         starts = [float(drive.channels[c].t_s[0]) for c in self.channels_used(drive)]
         return min(starts) if starts else drive.start_s
 
+    def channels_used(self, drive: Drive) -> tuple[str, ...]:
+        """The estimator's own channels, then the ones ignition alone reads before the start (see :data:`_START_CHANNELS`)."""
+        used = super().channels_used(drive)
+        if self.needs_start:
+            used += tuple(c for c in _START_CHANNELS if drive.has(c) and c not in used)
+        return used
+
     def process(self, measurement: Measurement) -> list[OutputRow]:
         n0 = len(self._rows)
         m = measurement
+        if self._started and m.channel not in self._own:
+            return []  # read for ignition only
         if self._pending and (m.channel != "rfid" or (m.t_s, m.arrival_s) != self._pending_key):
             self._flush_scan()
         if m.channel == "rfid":
             if not self._pending:
                 self._pending_key = (m.t_s, m.arrival_s)
             self._pending.append(m.values)
+        elif not self._started:
+            v = m.values
+            columns = {"imu": ("accel_x_mps2", "accel_y_mps2", "yaw_rate_radps"), "wheel": ("speed_mps",), "compass": ("yaw_rad",), **_FIX_CHANNELS}
+            if m.channel in columns:
+                self._pre_start(m.channel, m.t_s, tuple(v[c] for c in columns[m.channel]))
         else:
             v = m.values
             t = self._advance(m.t_s)
@@ -171,6 +206,9 @@ class FilterEstimator(Estimator):
     def finish(self) -> Estimate:
         if self._pending:
             self._flush_scan()
+        if not self._started:
+            self.diagnostics["not_started"] = "no start state: give --initial-pose, or a drive with fixes or ranges while moving"
+            self.diagnostics["ignition_attempts"] = self._ignition.attempts
         return Estimate.from_rows(
             self.name,
             self._rows,
@@ -223,6 +261,11 @@ class FilterEstimator(Estimator):
         if self._allowed is not None:
             keep &= np.array([i in self._allowed for i in ids], dtype=bool)
         self.diagnostics["ranges_unusable"] += int((~keep).sum())
+        if not self._started:
+            idx = [self._tag_index[i] for i, k in zip(ids, keep) if k]
+            self.diagnostics["ranges_before_start"] = self.diagnostics.get("ranges_before_start", 0) + int(keep.sum())
+            self._ignite(self._ignition.ranges(t_s, self._tag_en[idx], d[keep], sigma[keep]))
+            return
         if arrival_s > t_s or t_s < self._t:
             self.diagnostics["late_scans"] += 1
         t = self._advance(t_s)
@@ -274,7 +317,20 @@ class FilterEstimator(Estimator):
         while i < n_events:
             c, r = code[i], row[i]
             kind = names[c]
-            if kind == "imu":
+            if self._started and kind not in self._own:
+                i += 1
+                continue  # read for ignition only
+            if not self._started and kind != "rfid":
+                if kind == "imu":
+                    ts, ax, ay, wz = cols[c]
+                    self._pre_start(kind, ts[r], (ax[r], ay[r], wz[r]))
+                elif kind in ("wheel", "compass"):
+                    ts, v = cols[c]
+                    self._pre_start(kind, ts[r], (v[r],))
+                elif kind in _FIX_CHANNELS:
+                    ts, vals = cols[c]
+                    self._pre_start(kind, ts[r], vals[r])
+            elif kind == "imu":
                 ts, ax, ay, wz = cols[c]
                 t = self._advance(ts[r])
                 self._on_imu(t, ax[r], ay[r], wz[r])

@@ -47,13 +47,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from filters.base import FilterEstimator, InitialPose
+from filters.base import FilterEstimator
 from filters.core import ekf, federated
 from filters.models import kinematic as km
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import require_positive_numbers
+from graphpos.ignition import StartState
 
 SUBSYSTEMS = ("rsu", "gnss", "dr")
 _POS = [km.XE, km.XN]
@@ -97,10 +98,9 @@ class Liu2016Config:
         Consecutive failures that isolate a subsystem, passes that restore it.
     no_data_timeout_s : float
         A subsystem silent this long is isolated.
-    init_position_sigma_m, init_speed_sigma_mps, init_accel_sigma_mps2 : float
-        Initial 1-sigmas around the starting pose.
-    init_unknown_speed_sigma_mps : float
-        Initial velocity 1-sigma when the start comes from GNSS (no velocity).
+    init_accel_sigma_mps2 : float
+        Initial 1-sigma of the acceleration (the position, speed and heading
+        sigmas come from ignition, :mod:`graphpos.ignition`).
     coast : bool
         Output while every subsystem is isolated (pure prediction). The
         single-subsystem baselines turn it off: a positioning system without
@@ -119,9 +119,6 @@ class Liu2016Config:
     isolate_after: int = 3
     recover_after: int = 3
     no_data_timeout_s: float = 3.0
-    init_position_sigma_m: float = 0.5
-    init_speed_sigma_mps: float = 0.3
-    init_unknown_speed_sigma_mps: float = 10.0
     coast: bool = True
     init_accel_sigma_mps2: float = 1.0
 
@@ -184,23 +181,21 @@ class FederatedKf(FilterEstimator):
             raise MissingChannelError(f"{self.name}'s DR subsystem needs the imu and wheel channels, which drive '{drive.name}' lacks")
 
     # -- handlers ---------------------------------------------------------------
-    def _init_filter(self, drive: Drive, t0_s: float) -> None:
-        """Start from the drive's initial pose (:class:`filters.base.InitialPose`;
-        the paper sets the DR start by hand). From GNSS the velocity is
-        unknown: it starts at 0 with ``init_unknown_speed_sigma_mps``."""
+    def _init_filter(self, drive: Drive, start: StartState) -> None:
+        """Start from ignition's start state (:mod:`graphpos.ignition`; the
+        paper sets the DR start by hand)."""
         cfg = self.config
+        t0_s = start.t_s
         self._dt = 1.0 / cfg.output_rate_hz
         self._rsus = {int(i): np.array([e, n]) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
         self._Q = km.current_statistical_process_noise(self._dt, cfg.accel_sigma_mps2, cfg.accel_sigma_mps2, cfg.accel_tau_s, cfg.accel_tau_s)
         self._health = {s: _Health(last_data_s=t0_s) for s in cfg.subsystems}
         self._sharing = {s: cfg.sharing[SUBSYSTEMS.index(s)] for s in cfg.subsystems}
-        pose = InitialPose(drive, t0_s)
-        self._x = np.array([pose.east_m, pose.v_east_mps, 0.0, pose.north_m, pose.v_north_mps, 0.0])
-        sv = cfg.init_speed_sigma_mps if pose.from_truth else cfg.init_unknown_speed_sigma_mps
-        sp, sa = cfg.init_position_sigma_m, cfg.init_accel_sigma_mps2
+        self._x = np.array([start.east_m, start.v_east_mps, 0.0, start.north_m, start.v_north_mps, 0.0])
+        sp, sv, sa = start.position_sigma_m, start.speed_sigma_mps, cfg.init_accel_sigma_mps2
         self._P = np.diag(np.square([sp, sv, sa, sp, sv, sa]))
         self._t_state = t0_s
-        self._yaw = pose.yaw_rad
+        self._yaw = start.yaw_rad
         self._reset_epoch()
 
     def _reset_epoch(self) -> None:

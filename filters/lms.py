@@ -327,12 +327,13 @@ class LmsFederated(FilterEstimator):
     summary = "song2014 RFID-only LMS-federated filter: per-tag LMS, weighted LS, global LMS, feedback (per scan)"
     required_channels = ("rfid",)
     output_on_scan = True
+    needs_start = False
 
     @classmethod
     def default_config(cls) -> LmsFederatedConfig:
         return LmsFederatedConfig()
 
-    def _init_filter(self, drive: Drive, t0_s: float) -> None:
+    def _init_filter(self, drive: Drive, start) -> None:
         self._positioner = LmsFederatedPositioner(self.config)
 
     def _on_scan(self, t_s: float, tags: np.ndarray, ranges: np.ndarray, sigmas: np.ndarray) -> None:

@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from filters.base import FilterEstimator, InitialPose
+from filters.base import FilterEstimator
 from filters.core import imm, stekf
 from filters.core.stekf import FadingConfig, FadingMemory
 from filters.lms import Fix, LmsFederatedConfig, LmsFederatedPositioner
@@ -44,6 +44,7 @@ from graphpos.drive import Drive
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import require_positive_numbers
+from graphpos.ignition import StartState
 
 _DEG = math.pi / 180.0
 _MODELS = ("ca", "ct")
@@ -83,8 +84,9 @@ class Song2014Config:
         Observation noise 1-sigma.
     rfid_sigma_floor_m : float
         Floor on the 1-sigma of an LMS-federated fix.
-    init_position_sigma_m, init_speed_sigma_mps, init_yaw_sigma_rad, init_yaw_rate_sigma_radps : float
-        Initial 1-sigmas around the starting pose.
+    init_yaw_rate_sigma_radps : float
+        Initial 1-sigma of the turn rate (the other start sigmas come from
+        ignition, :mod:`graphpos.ignition`).
     lms : LmsFederatedConfig
         The preliminary positioning.
     """
@@ -102,9 +104,6 @@ class Song2014Config:
     wheel_sigma_mps: float = 0.1
     compass_sigma_rad: float = 2.0 * _DEG
     rfid_sigma_floor_m: float = 0.5
-    init_position_sigma_m: float = 0.5
-    init_speed_sigma_mps: float = 0.3
-    init_yaw_sigma_rad: float = 3.0 * _DEG
     init_yaw_rate_sigma_radps: float = 5.0 * _DEG
     lms: LmsFederatedConfig = field(default_factory=LmsFederatedConfig)
 
@@ -139,8 +138,9 @@ class _Epoch:
 class Song2014Fusion(FilterEstimator):
     """The song2014 fusion filter; subclasses fix the model set and fading.
 
-    Starts from the drive's initial pose (:class:`filters.base.InitialPose`:
-    the DGPS position before the tunnel, as in the paper's experiments).
+    Starts from ignition's start state (:mod:`graphpos.ignition`: on the
+    simulated paper drives the DGPS fixes before the tunnel, as in the
+    paper's experiments).
     """
 
     required_channels = ("rfid", "imu", "wheel", "compass")
@@ -152,16 +152,16 @@ class Song2014Fusion(FilterEstimator):
             raise MissingChannelError(f"{self.name} needs accelerometer readings (imu accel_x/y), which drive '{drive.name}' lacks")
 
     # -- handlers ---------------------------------------------------------------
-    def _init_filter(self, drive: Drive, t0_s: float) -> None:
+    def _init_filter(self, drive: Drive, start: StartState) -> None:
         cfg = self.config
+        t0_s = start.t_s
         self._positioner = LmsFederatedPositioner(cfg.lms)
         self._epoch = _Epoch()
         self._fix: Fix | None = None
         self._last_input = np.zeros(3)
-        pose = InitialPose(drive, t0_s)
-        x = np.array([pose.east_m, pose.north_m, pose.v_east_mps, pose.v_north_mps, wrap_angle(pose.yaw_rad), 0.0])
-        P = np.diag(np.square([cfg.init_position_sigma_m, cfg.init_position_sigma_m, cfg.init_speed_sigma_mps,
-                               cfg.init_speed_sigma_mps, cfg.init_yaw_sigma_rad, cfg.init_yaw_rate_sigma_radps]))
+        x = np.array([start.east_m, start.north_m, start.v_east_mps, start.v_north_mps, wrap_angle(start.yaw_rad), 0.0])
+        sp, sv = start.position_sigma_m, start.speed_sigma_mps
+        P = np.diag(np.square([sp, sp, sv, sv, start.yaw_sigma_rad, cfg.init_yaw_rate_sigma_radps]))
         n = len(cfg.models)
         self._states = np.repeat(x[None], n, axis=0)  # (models, 6)
         self._covs = np.repeat(P[None], n, axis=0)  # (models, 6, 6)

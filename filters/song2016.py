@@ -28,13 +28,14 @@ drives of the papers' specification and stated in the config docstrings.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import ClassVar
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from filters.base import FilterEstimator, InitialPose
+from filters.base import FilterEstimator
 from filters.core import ekf
 from filters.core.federated import fuse, share_information
 from filters.core.ukf import MerweScaledSigmaPoints, UnscentedKalmanFilter
@@ -43,9 +44,10 @@ from filters.models import vehicle
 from filters.models.angles import angle_residual, wrap_angle
 from filters.models.vehicle import PE, PN, VE, VN, YAW
 from graphpos.drive import Drive
-from graphpos.errors import ConfigError, MissingChannelError
+from graphpos.errors import ConfigError
 from graphpos.estimate import OutputRow
 from graphpos.estimator import require_positive_numbers
+from graphpos.ignition import StartState
 
 _DEG = math.pi / 180.0
 
@@ -89,8 +91,6 @@ class VehicleFilterConfig:
         biased lateral accelerometer, which drifts metres within seconds
         between the optimised layout's tag groups); None turns it off for
         the paper's literal observation.
-    init_position_sigma_m, init_speed_sigma_mps, init_yaw_sigma_rad : float
-        Initial 1-sigmas around the starting pose (DGPS before the tunnel).
     range_gate_probability : float
         Chi-square gate on each range innovation (one degree of freedom);
         1.0 turns gating off (the papers have none).
@@ -110,9 +110,6 @@ class VehicleFilterConfig:
     wheel_sigma_mps: float = 1.5
     compass_sigma_rad: float = 2.0 * _DEG
     lateral_velocity_sigma_mps: float | None = 1.0
-    init_position_sigma_m: float = 0.5
-    init_speed_sigma_mps: float = 0.3
-    init_yaw_sigma_rad: float = 3.0 * _DEG
     range_gate_probability: float = 0.999
     range_sigma_scale: float = 1.2
 
@@ -141,6 +138,10 @@ class RfidEkfConfig:
         the step (1-sigma per axis). Q_RFID is not given in the paper; ours,
         about the test speed.
     init_position_sigma_m : float
+        1-sigma of the start position when the filter is the first level of
+        ``two-level-ekf`` (started at the start state's position; ours). The
+        ``rfid-ekf`` itself takes the user's start pose and its sigma, or
+        its first scan.
     range_gate_probability : float
         As in :class:`VehicleFilterConfig`.
     update_iterations : int
@@ -370,21 +371,11 @@ def _wheel_variances(cfg: VehicleFilterConfig) -> np.ndarray:
     return np.array([cfg.wheel_sigma_mps**2, cfg.lateral_velocity_sigma_mps**2])
 
 
-def _initial_covariance(cfg: VehicleFilterConfig) -> np.ndarray:
-    return np.diag(
-        [
-            cfg.init_position_sigma_m**2,
-            cfg.init_position_sigma_m**2,
-            cfg.init_speed_sigma_mps**2,
-            cfg.init_speed_sigma_mps**2,
-            cfg.init_yaw_sigma_rad**2,
-        ]
-    )
-
-
-def _initial_state(drive: Drive, t0: float) -> np.ndarray:
-    pose = InitialPose(drive, t0)
-    return np.array([pose.east_m, pose.north_m, pose.v_east_mps, pose.v_north_mps, wrap_angle(pose.yaw_rad)])
+def _initial_state(start: StartState) -> tuple[np.ndarray, np.ndarray]:
+    """The 5-state ``[p_e, p_n, v_e, v_n, psi]`` and its covariance from ignition's start state."""
+    x = np.array([start.east_m, start.north_m, start.v_east_mps, start.v_north_mps, wrap_angle(start.yaw_rad)])
+    sp, sv, sy = start.position_sigma_m, start.speed_sigma_mps, start.yaw_sigma_rad
+    return x, np.diag([sp * sp, sp * sp, sv * sv, sv * sv, sy * sy])
 
 
 def _gated_range_rows(x, P, tags, ranges, sigmas, probability):
@@ -403,9 +394,8 @@ class _VehicleEkf(FilterEstimator):
     def default_config(cls) -> VehicleFilterConfig:
         return VehicleFilterConfig()
 
-    def _init_filter(self, drive: Drive, t0_s: float) -> None:
-        self._x = _initial_state(drive, t0_s)
-        self._P = _initial_covariance(self.config)
+    def _init_filter(self, drive: Drive, start: StartState) -> None:
+        self._x, self._P = _initial_state(start)
         self._hold = _InputHold(self.config)
         self._R_wheel = _wheel_variances(self.config)
         self._R_compass = np.array([self.config.compass_sigma_rad**2])
@@ -482,6 +472,14 @@ class DeadReckoning(_VehicleEkf):
     required_channels = ("imu", "wheel")
     optional_channels = ("compass",)
 
+    #: Start heading 1-sigma ignition must reach: without a compass nothing
+    #: corrects the heading afterwards, and 5 degrees (the other filters'
+    #: limit) is 9 m of cross-track error per 100 m driven.
+    START_YAW_SIGMA_RAD = math.radians(1.0)
+
+    def _ignition_config(self):
+        return dataclasses.replace(super()._ignition_config(), max_yaw_sigma_rad=self.START_YAW_SIGMA_RAD)
+
 
 class TwoLevelEkf(_VehicleEkf):
     """song2016b: level 1 is the RFID-EKF; its positions (1 Hz) are position
@@ -498,9 +496,9 @@ class TwoLevelEkf(_VehicleEkf):
     def default_config(cls) -> TwoLevelEkfConfig:
         return TwoLevelEkfConfig()
 
-    def _init_filter(self, drive, t0_s):
-        super()._init_filter(drive, t0_s)
-        self._level1 = _RfidEkfState(self.config.level1, self._x[:2], t0_s)
+    def _init_filter(self, drive, start):
+        super()._init_filter(drive, start)
+        self._level1 = _RfidEkfState(self.config.level1, self._x[:2], start.t_s, self.config.level1.init_position_sigma_m)
 
     def _on_scan(self, t_s, tags, ranges, sigmas):
         used, gated = self._level1.scan(t_s, tags, ranges, sigmas)
@@ -519,11 +517,10 @@ class _RfidEkfState:
     """The RFID-EKF filter itself (song2016 eq. 10-15), shared by ``rfid-ekf``
     and the first level of ``two-level-ekf``."""
 
-    def __init__(self, cfg: RfidEkfConfig, x0: np.ndarray, t0_s: float, sigma0_m: float | None = None):
+    def __init__(self, cfg: RfidEkfConfig, x0: np.ndarray, t0_s: float, sigma0_m: float):
         self.cfg = cfg
         self.x = np.array(x0[:2], dtype=np.float64)
-        s0 = cfg.init_position_sigma_m if sigma0_m is None else sigma0_m
-        self.P = np.eye(2) * s0**2
+        self.P = np.eye(2) * sigma0_m**2
         self.t = t0_s
 
     def scan(self, t_s, tags, ranges, sigmas) -> tuple[int, int]:
@@ -548,26 +545,24 @@ class RfidEkf(FilterEstimator):
     """song2016 RFID-EKF (eq. 10-15): position random walk, one range row per
     detected tag, one output per RFID scan (1 Hz), no velocity.
 
-    Without a truth/GNSS starting pose the filter starts at the centroid of
-    the first scan's tags with a 10 m sigma.
+    It starts from the user's start pose when one is given, else at the
+    centroid of the first scan's tags with a 10 m sigma (the papers start it
+    from DGPS, which this RFID-only filter does not read).
     """
 
     name = "rfid-ekf"
     summary = "song2016 RFID-EKF: 2-state EKF on tag ranges, output per scan (1 Hz), no velocity"
     required_channels = ("rfid",)
     output_on_scan = True
+    needs_start = False
     config: RfidEkfConfig
 
     @classmethod
     def default_config(cls) -> RfidEkfConfig:
         return RfidEkfConfig()
 
-    def _init_filter(self, drive, t0_s):
-        try:
-            pose = InitialPose(drive, t0_s)
-            self._f = _RfidEkfState(self.config, np.array([pose.east_m, pose.north_m]), t0_s)
-        except MissingChannelError:  # no truth or GNSS: start at the first scan
-            self._f = None
+    def _init_filter(self, drive, start):
+        self._f = None if start is None else _RfidEkfState(self.config, np.array([start.east_m, start.north_m]), start.t_s, start.position_sigma_m)
 
     def _on_scan(self, t_s, tags, ranges, sigmas):
         if self._f is None:
@@ -594,6 +589,7 @@ class Multilateration(FilterEstimator):
     summary = "song2016 eq. 38 multilateration (linearised least squares), output per scan"
     required_channels = ("rfid",)
     output_on_scan = True
+    needs_start = False
     config: MultilaterationConfig
 
     @classmethod
@@ -710,9 +706,9 @@ class Fukf(FilterEstimator):
     def default_config(cls) -> FukfConfig:
         return FukfConfig()
 
-    def _init_filter(self, drive, t0_s):
+    def _init_filter(self, drive, start):
         cfg = self.config
-        x0, P0 = _initial_state(drive, t0_s), _initial_covariance(cfg)
+        x0, P0 = _initial_state(start)
         self._points = MerweScaledSigmaPoints(5, cfg.ukf_alpha, cfg.ukf_beta, cfg.ukf_kappa)
         self._hold = _InputHold(cfg)
         self._local = [UnscentedKalmanFilter(x0, P0, self._points, angle_states=(YAW,)) for _ in range(2)]

@@ -31,6 +31,14 @@ from typing import Any, ClassVar
 from graphpos.drive import Drive, Measurement
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
+from graphpos.ignition import StartPose
+from graphpos.profile import SensorProfile
+
+
+def _reports_ranges(drive: Drive) -> bool:
+    import numpy as np
+
+    return drive.has("rfid") and bool(np.isfinite(drive.rfid.range_m).any())
 
 
 def require_positive_numbers(config: Any, skip: tuple[str, ...] = ()) -> None:
@@ -57,6 +65,14 @@ class Estimator(ABC):
     range_model : graphpos.ranging.RangeModel, optional
         How RFID/RSU readings become distances and sigmas. None: the drive's
         default (:func:`graphpos.ranging.default_range_model`).
+    initial_pose : graphpos.ignition.StartPose, optional
+        A start pose the user gives (``--initial-pose``); None: the one
+        stored in the drive (``params["initial_pose"]``), else ignition finds
+        one from the sensors (:mod:`graphpos.ignition`).
+    profile : graphpos.profile.SensorProfile, optional
+        A sensor calibration (``--profile``, found on another drive of the
+        same sensors): the drive's readings are corrected before the
+        estimator sees them, its range sigma and heading noise are used.
     """
 
     #: Registry name (``fusion-ekf``).
@@ -68,10 +84,17 @@ class Estimator(ABC):
     #: Channels used when present (with documented fallbacks when absent).
     optional_channels: ClassVar[tuple[str, ...]] = ()
 
-    def __init__(self, config: Any = None, layout: str | None = None, range_model: Any = None):
+    def __init__(self, config: Any = None, layout: str | None = None, range_model: Any = None, initial_pose: StartPose | None = None,
+                 profile: SensorProfile | None = None):
         self.config = config if config is not None else self.default_config()
         self.layout = layout
         self.range_model = range_model
+        self.initial_pose = initial_pose
+        self.profile = profile
+
+    def start_pose(self, drive: Drive) -> StartPose | None:
+        """The user's start pose: the one given, else the drive's stored one, else None."""
+        return self.initial_pose if self.initial_pose is not None else StartPose.from_params(drive.params)
 
     @classmethod
     @abstractmethod
@@ -88,9 +111,22 @@ class Estimator(ABC):
             )
 
     def prepare(self, drive: Drive) -> Drive:
-        """Validate the drive and apply the layout restriction."""
+        """Validate the drive, apply the layout restriction and the sensor profile's corrections and noise levels."""
         self.check(drive)
+        if self.profile is not None:
+            drive = self.profile.correct(drive)
+            self.config = self.profile.tuned(self.config)
         return drive.with_layout(self.layout) if self.layout else drive
+
+    def resolved_range_model(self, drive: Drive) -> Any:
+        """The given range model, else the profile's, else the drive's default."""
+        if self.range_model is not None:
+            return self.range_model
+        if self.profile is not None and self.profile.range_model() is not None and _reports_ranges(drive):
+            return self.profile.range_model()
+        from graphpos.ranging import default_range_model
+
+        return default_range_model(drive)
 
     def channels_used(self, drive: Drive) -> tuple[str, ...]:
         """Channels fed to ``process``, in tie-break order."""

@@ -9,14 +9,16 @@ nearest its own timestamp ``t_s`` — also when it arrives late: a reading for
 a keyframe already in the graph goes into the next update, up to
 ``max_delay_s`` late (issue 6, item 4).
 
-Start-up: until the first absolute information (a fix or a tag range),
-nothing constrains the position, so keyframes are held back (their output is
-dead reckoning from the origin) unless a start pose is given. The first
-absolute reading anchors the trajectory: the held keyframes are shifted so
-the anchoring keyframe sits at the fix, or at the tags' centroid (offset by
-the range from a single wall tag), and released to the smoother with a weak
-prior on the first keyframe, which keeps the system determinate when a
-single range cannot fix the position (never IndeterminantLinearSystem).
+Start-up (the shared :mod:`graphpos.ignition`): with a start pose from the
+user, keyframe 0 gets a prior with the user's sigmas. Otherwise keyframes
+are held back (no output) and every measurement also goes to ignition,
+which solves the start from fixes or ranges with the dead-reckoned motion;
+when it gives a start state, the held track is moved rigidly (turned and
+shifted) onto it and released to the smoother with a prior at the
+keyframe of the start, wide (three times ignition's sigmas: the readings
+ignition used are in the graph too) but enough to keep the system
+determinate whatever the readings (never IndeterminantLinearSystem). A
+drive on which ignition never succeeds gives no output.
 """
 
 from __future__ import annotations
@@ -27,26 +29,23 @@ from dataclasses import dataclass, field
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, R
-from scipy.optimize import least_squares
 
 from graphpos.drive import Channel, Drive, Measurement
 from graphpos.graph.config import GraphConfig
+from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState
+from graphpos.profile import SensorProfile
 from graphpos.graph.models import KeyframeState, robust
 from graphpos.graph.odometry import OdometryDelta, PlanarOdometry
 
-#: 1-sigma of the first keyframe's position prior once anchored by ranges
-#: or fixes: weak, only there to keep the system determinate.
-WEAK_POSITION_SIGMA_M = 30.0
-#: Yaw sigma at start-up when neither an initial pose nor a compass gives it.
-UNKNOWN_YAW_SIGMA_RAD = math.pi
 #: A landmark key is reused for sightings at most this far apart, s.
 LANDMARK_LIFETIME_S = 3.0
-#: Ranges used together to anchor the start-up track, s.
-ANCHOR_WINDOW_S = 10.0
-#: Two anchor solutions farther apart than this (m) are distinct; the best
-#: must beat every distinct rival by this chi-square margin, or anchoring waits.
-ANCHOR_AMBIGUITY_M = 2.0
-ANCHOR_CHI2_MARGIN = 9.0
+#: Factor on ignition's sigmas for the start prior of the released track.
+START_PRIOR_INFLATION = 3.0
+#: The graph starts from a looser heading than a filter (ignition's default
+#: 5 degrees): the start only sets the linearisation point and a wide prior,
+#: and the graph resolves the heading from every range it holds. On the slow
+#: MRCLAM robots, 5 degrees took 100-400 s of driving.
+START_MAX_YAW_SIGMA_RAD = math.radians(15.0)
 
 
 @dataclass
@@ -102,9 +101,9 @@ class GraphBuilder:
         Keep every factor (for batch solves and range-scale estimation).
     range_scale : float
         Readings are divided by this scale (``reading = scale * distance``).
-    initial_pose : tuple (east_m, north_m, yaw_rad) or None
-        A known start pose (prior with the config's sigmas); None: anchor on
-        the first absolute reading.
+    initial_pose : StartPose or None
+        A start pose from the user (prior with its sigmas at keyframe 0);
+        None: ignition finds the start.
     release_window_s : float
         Without history, how much of the held start-up track is released
         to the smoother at anchoring.
@@ -120,7 +119,7 @@ class GraphBuilder:
         landmark_lifetime_s: float = LANDMARK_LIFETIME_S,
         keep_history: bool = True,
         range_scale: float = 1.0,
-        initial_pose: tuple[float, float, float] | None = None,
+        initial_pose: StartPose | None = None,
         release_window_s: float = math.inf,
     ):
         self.config = config
@@ -142,6 +141,8 @@ class GraphBuilder:
             slip_density=c.lateral_slip_sigma_mps / math.sqrt(c.wheel_rate_hz),
             heading_drift_sigma_radps=c.heading_drift_sigma_radps,
             speed_scale_density=c.wheel_scale_density_per_sqrt_s,
+            heading_density=c.heading_noise_radps_per_sqrt_s,
+            turn_scale_density=c.turn_scale_density_per_sqrt_s,
             has_speed=drive.has("wheel"),
             has_yaw_rate=drive.has("imu"),
         )
@@ -160,8 +161,11 @@ class GraphBuilder:
         self.anchored = initial_pose is not None
         self._backlog: list[Increment] = []
         self._backlog_landmarks: dict[int, np.ndarray] = {}
-        self._pre_anchor_ranges: list[tuple[int, tuple[str, int], float, float]] = []
-        self._first_yaw: float | None = None
+        self.ignition = Ignition(np.column_stack([drive.tags.east_m, drive.tags.north_m]), drive.tags.wall_side, has_wheel=drive.has("wheel"),
+                                 config=IgnitionConfig(compass_sigma_rad=config.compass_sigma_rad, max_yaw_sigma_rad=START_MAX_YAW_SIGMA_RAD))
+        self._start: StartState | None = None
+        #: Corrections of the incoming yaw rates and wheel speeds learnt online (:meth:`recalibrate`).
+        self.corrections = SensorProfile()
         # history for batch solves / scale estimation
         self.fixed_factors = gtsam.NonlinearFactorGraph()
         self.range_records: list[RangeRecord] = []
@@ -169,7 +173,9 @@ class GraphBuilder:
         self.wheel_scale: float | None = None  # None: wheel factors as built online
         self.wheel_drift_density: float | None = None  # with wheel_scale None: rebuild the drift term at this density
         self.landmark_positions: dict[int, np.ndarray] = {}
-        self.diagnostics = {"late_attached": 0, "late_dropped": 0, "ranges": 0, "anchor_keyframe": None}
+        self.diagnostics = {"late_attached": 0, "late_dropped": 0, "ranges": 0, "anchor_keyframe": None, "start": None}
+        if initial_pose is not None:
+            self.diagnostics["start"] = {"source": "user", **initial_pose.to_dict()}
 
     # -- time grid ----------------------------------------------------------
     def keyframe_time(self, k: int) -> float:
@@ -202,15 +208,20 @@ class GraphBuilder:
             k = self.last_keyframe + 1
             closed.append(self._close(k, self.keyframe_time(k) + 1e-6))
         if not self.anchored and self._backlog:
-            closed.append(self._release(closed[-1] if closed else None))
+            self._ignite(self.ignition.finish())
+            if self._start is not None:
+                closed.append(self._release(closed[-1] if closed else None, self._move_onto_start(self._start)))
         return closed
 
     def _take(self, m: Measurement, arrival: float) -> None:
         v = m.values
         ch = m.channel
         if ch == "imu":
+            yaw_rate = (v["yaw_rate_radps"] - self.corrections.gyro_bias_radps) / self.corrections.yaw_rate_scale
             self.odometry.advance(m.t_s)
-            self.odometry.set_yaw_rate(v["yaw_rate_radps"])
+            self.odometry.set_yaw_rate(yaw_rate)
+            if not self.anchored:
+                self._ignite(self.ignition.yaw_rate(m.t_s, yaw_rate))
             if self.pim is not None:
                 self._integrate_imu(m.t_s)
                 self._imu_held = (
@@ -219,8 +230,11 @@ class GraphBuilder:
                 )
             return
         if ch == "wheel":
+            speed = v["speed_mps"] / self.corrections.wheel_scale
             self.odometry.advance(m.t_s)
-            self.odometry.set_speed(v["speed_mps"])
+            self.odometry.set_speed(speed)
+            if not self.anchored:
+                self._ignite(self.ignition.speed(m.t_s, speed))
             return
         if ch == "rfid":
             reading = Channel("rfid", {k: [x] for k, x in v.items()}, validate=False)
@@ -240,10 +254,10 @@ class GraphBuilder:
             entry = ("fix", float(v["east_m"]), float(v["north_m"]), float(v["sigma_m"]))
         elif ch == "compass":
             entry = ("compass", float(v["yaw_rad"]))
-            if self._first_yaw is None:
-                self._first_yaw = entry[1]
         else:
             return
+        if not self.anchored:
+            self._ignite_with(m.t_s, entry)
         k = max(self._nearest_keyframe(m.t_s), 0)
         if k > self.last_keyframe:
             self._waiting.setdefault(k, []).append(entry)
@@ -252,6 +266,42 @@ class GraphBuilder:
             self.diagnostics["late_attached"] += 1
         else:
             self.diagnostics["late_dropped"] += 1
+
+    # -- start-up -------------------------------------------------------------
+    def _ignite_with(self, t_s: float, entry: tuple) -> None:
+        """Give an absolute reading to ignition (before the track is anchored)."""
+        kind = entry[0]
+        if kind == "compass":
+            state = self.ignition.compass(t_s, entry[1])
+        elif kind == "fix":
+            state = self.ignition.fix(t_s, entry[1], entry[2], entry[3])
+        else:
+            _, which, reading, sigma, _ = entry
+            mark = np.array([self._landmark_position(which)])
+            state = self.ignition.ranges(t_s, mark, np.array([reading / self.range_scale]), np.array([sigma / self.range_scale]))
+        self._ignite(state)
+
+    def _ignite(self, state: StartState | None) -> None:
+        if state is not None and self._start is None:
+            self._start = state
+            self.diagnostics["start"] = state.describe()
+
+    def recalibrate(self, corrections: SensorProfile, range_scale: float, range_model) -> None:
+        """Use learnt corrections from now on: readings still to come are corrected, new factors get the noise levels.
+
+        ``corrections``: the yaw-rate and wheel corrections (of raw readings)
+        and noise levels; ``range_scale`` and ``range_model`` (a sigma) for
+        tag ranges still to come. Factors already built stay as they are.
+        """
+        self.corrections = corrections
+        self.range_scale = range_scale
+        if range_model is not None:
+            self.range_model = range_model
+        o = self.odometry
+        if corrections.heading_noise_radps_per_sqrt_s is not None:
+            o.heading_var = corrections.heading_noise_radps_per_sqrt_s**2
+        if corrections.turn_scale_density_per_sqrt_s is not None:
+            o.turn_scale_var = corrections.turn_scale_density_per_sqrt_s**2
 
     def _keyframe_alive(self, k: int) -> bool:
         return k in self.states
@@ -265,11 +315,9 @@ class GraphBuilder:
 
     # -- keyframes ------------------------------------------------------------
     def _initial_state(self) -> KeyframeState:
-        """Start pose (given, or origin + first compass yaw), moving at the first wheel speed."""
-        if self.initial_pose is not None:
-            e, n, yaw = self.initial_pose
-        else:
-            e, n, yaw = 0.0, 0.0, (self._first_yaw if self._first_yaw is not None else 0.0)
+        """Keyframe 0: the user's start pose, else the origin heading east (moved onto ignition's start later)."""
+        p = self.initial_pose
+        e, n, yaw = (p.east_m, p.north_m, p.yaw_rad) if p is not None else (0.0, 0.0, 0.0)
         v = self.odometry.speed_mps
         return KeyframeState(float(e), float(n), float(yaw), v * math.cos(yaw), v * math.sin(yaw))
 
@@ -281,14 +329,11 @@ class GraphBuilder:
             self._integrate_imu(t_k)
         entries = self._waiting.pop(k, [])
         if k == 0:
-            for e in entries:
-                if e[0] == "compass" and self._first_yaw is None:
-                    self._first_yaw = e[1]
             state = self._initial_state()
             inc.anchoring = self.anchored
             if self.anchored:
-                c = self.config
-                self._add(inc, self.model.prior_factors(0, state, c.initial_position_sigma_m, c.initial_yaw_sigma_rad))
+                p = self.initial_pose
+                self._add(inc, self.model.prior_factors(0, state, p.position_sigma_m, p.yaw_sigma_rad))
         else:
             state = self.model.predict(self.states[k - 1], delta, self.pim)
             wheel, *others = self.model.odometry_factors(k, delta, self.pim)
@@ -308,17 +353,13 @@ class GraphBuilder:
         ready = [(k, e) for e in entries] + self._ready
         self._ready = []
         if not self.anchored:
-            anchor = self._anchor_offset(ready)
-            if anchor is None:
-                self._backlog.append(inc)
-                self._attach(inc, ready)
+            self._backlog.append(inc)
+            self._attach(inc, ready)
+            if self._start is None:
                 inc.released = []
                 self._prune(k)
                 return inc
-            self._shift(anchor)
-            self._backlog.append(inc)
-            self._attach(inc, ready)
-            return self._release(inc)
+            return self._release(inc, self._move_onto_start(self._start))
         self._attach(inc, ready)
         inc.released = [k]
         self._prune(k)
@@ -409,7 +450,7 @@ class GraphBuilder:
             g.add(self.model.wheel_factor(k, delta, self.wheel_scale))
         return g
 
-    def fit_wheel_scale(self, values: gtsam.Values) -> float:
+    def fit_wheel_scale(self, values: gtsam.Values, since_keyframe: int = 0) -> float:
         """Wheel scale (``reading = scale * true``) fitting the wheel deltas to a solved trajectory.
 
         Least squares of ``solved = measured / scale`` over the keyframe
@@ -422,8 +463,9 @@ class GraphBuilder:
         ``sum(solved**2)`` and biased the scale low (0.5 % on a 40 s drive at
         5 m/s with no scale error).
         """
-        measured = np.array([[d.dx_m, d.dy_m] for _, d in self.odometry_records])
-        solved = np.array([self.model.body_translation(values, k) for k, _ in self.odometry_records])
+        records = [(k, d) for k, d in self.odometry_records if k > since_keyframe and values.exists(self.model.pose_key(k - 1))]
+        measured = np.array([[d.dx_m, d.dy_m] for _, d in records]).reshape(-1, 2)
+        solved = np.array([self.model.body_translation(values, k) for k, _ in records]).reshape(-1, 2)
         along = np.sum(measured * solved)
         return float(np.sum(measured * measured) / along) if along > 1e-12 else 1.0
 
@@ -447,69 +489,34 @@ class GraphBuilder:
         inc.timestamps[key] = t_k
         return key
 
-    # -- start-up anchoring --------------------------------------------------
-    def _anchor_offset(self, ready: list[tuple[int, tuple]]) -> tuple[float, float] | None:
-        """East/north shift that puts the dead-reckoned track on the absolute readings so far.
-
-        A fix anchors at once. Ranges anchor once they fix the position in
-        two directions: readings of at least two landmarks within
-        :data:`ANCHOR_WINDOW_S`, each placed relative to the latest one's
-        keyframe by dead reckoning; the shift is their least-squares solution
-        (several starts around the first landmark, best kept). A single
-        range would leave the along-track shift to the weak prior alone —
-        numerically indeterminate on a long held-back track.
-        """
-        fixes = [(k, e) for k, e in ready if e[0] == "fix"]
-        if fixes:
-            k, (_, e, n, _) = fixes[0]
-            s = self.states[k]
-            self.diagnostics["anchor_keyframe"] = k
-            return e - s.east_m, n - s.north_m
-        self._pre_anchor_ranges.extend((k, e[1], e[2] / self.range_scale, e[3] / self.range_scale) for k, e in ready if e[0] == "range")
-        if not self._pre_anchor_ranges:
-            return None
-        k_last = max(k for k, *_ in self._pre_anchor_ranges)
-        recent = [r for r in self._pre_anchor_ranges if (k_last - r[0]) * self.period_s <= ANCHOR_WINDOW_S]
-        if len({w for _, w, _, _ in recent}) < 2:
-            return None
-        dr = np.array([[self.states[k].east_m, self.states[k].north_m] for k, *_ in recent])
-        marks = np.array([self._landmark_position(w) for _, w, _, _ in recent])
-        reading = np.array([r for _, _, r, _ in recent])
-        sigma = np.array([s for *_, s in recent])
-
-        def residual(offset: np.ndarray) -> np.ndarray:
-            return (np.hypot(*(dr + offset - marks).T) - reading) / sigma
-
-        fits = []
-        for angle in np.linspace(0.0, 2 * np.pi, 12, endpoint=False):
-            start = marks[-1] + reading[-1] * np.array([math.cos(angle), math.sin(angle)]) - dr[-1]
-            fits.append(least_squares(residual, start, loss="soft_l1"))
-        best = min(fits, key=lambda f: f.cost)
-        if np.linalg.cond(best.jac.T @ best.jac) > 1e6:
-            return None  # landmarks in line with the track so far: wait for more
-        rivals = [f.cost for f in fits if np.linalg.norm(f.x - best.x) > ANCHOR_AMBIGUITY_M]
-        if rivals and min(rivals) - best.cost < ANCHOR_CHI2_MARGIN / 2:
-            return None  # a mirror solution fits almost as well (tags passed on both sides): wait
-        self.diagnostics["anchor_keyframe"] = k_last
-        return float(best.x[0]), float(best.x[1])
-
     def _landmark_position(self, which: tuple[str, int]) -> tuple[float, float]:
         return self.tags[which[1]][:2] if which[0] == "tag" else self.rsus[which[1]]
 
-    def _shift(self, offset: tuple[float, float]) -> None:
-        de, dn = offset
-        for k in list(self.states):
-            self.states[k] = self.states[k].shifted(de, dn)
+    def _move_onto_start(self, start: StartState) -> int:
+        """Turn and shift the held track so the keyframe of the start sits on ignition's start state; that keyframe.
 
-    def _release(self, last: Increment | None) -> Increment:
-        """The held keyframes as one increment, shifted, with the weak start prior.
+        The start state's time may fall up to a keyframe after the keyframe's:
+        its position is taken back along its velocity.
+        """
+        k = min(max(self._nearest_keyframe(start.t_s), 0), self.last_keyframe)
+        ref = self.states[k]
+        lag = start.t_s - self.keyframe_time(k)
+        e, n = start.east_m - start.v_east_mps * lag, start.north_m - start.v_north_mps * lag
+        turn = start.yaw_rad - ref.yaw_rad
+        for j in list(self.states):
+            self.states[j] = self.states[j].moved(ref.east_m, ref.north_m, turn, e, n)
+        self.diagnostics["anchor_keyframe"] = k
+        return k
+
+    def _release(self, last: Increment | None, start_keyframe: int | None) -> Increment:
+        """The held keyframes as one increment, moved onto the start, with the start prior at ``start_keyframe``.
 
         Without history (fixed-lag) only the keyframes within
         ``release_window_s`` are released: older ones would be marginalised
         at once, and marginalising a long, weakly anchored dead-reckoned
         track is numerically indeterminate.
         """
-        merged = Increment(last.keyframe if last else self.last_keyframe, last.t_s if last else 0.0, anchoring=True)
+        merged = Increment(last.keyframe if last else self.last_keyframe, last.t_s if last else self.keyframe_time(self.last_keyframe), anchoring=True)
         window = [inc for inc in self._backlog if inc.t_s >= merged.t_s - self.release_window_s] or self._backlog[-1:]
         allowed = set(self._backlog_landmarks)
         for inc in window:
@@ -532,9 +539,12 @@ class GraphBuilder:
         for key, point in self._backlog_landmarks.items():
             merged.values.insert(key, point)
             merged.timestamps.setdefault(key, merged.t_s)
-        yaw_sigma = self.config.compass_sigma_rad * 3 if self._first_yaw is not None else UNKNOWN_YAW_SIGMA_RAD
-        priors = self.model.prior_factors(merged.released[0], self.states[merged.released[0]], WEAK_POSITION_SIGMA_M, yaw_sigma)
-        self._add(merged, priors)
+        if start_keyframe is not None:
+            at = min(max(start_keyframe, merged.released[0]), merged.released[-1])
+            st = self._start
+            sigma_m = START_PRIOR_INFLATION * st.position_sigma_m
+            sigma_yaw = min(START_PRIOR_INFLATION * st.yaw_sigma_rad, math.pi)
+            self._add(merged, self.model.prior_factors(at, self.states[at], sigma_m, sigma_yaw))
         self._backlog = []
         self._backlog_landmarks = {}
         self.anchored = True

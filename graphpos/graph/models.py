@@ -43,8 +43,12 @@ class KeyframeState:
     v_north_mps: float = 0.0
     bias: np.ndarray | None = None  # accel(3) + gyro(3), inertial graph only
 
-    def shifted(self, de_m: float, dn_m: float) -> "KeyframeState":
-        return KeyframeState(self.east_m + de_m, self.north_m + dn_m, self.yaw_rad, self.v_east_mps, self.v_north_mps, self.bias)
+    def moved(self, pivot_east_m: float, pivot_north_m: float, turn_rad: float, to_east_m: float, to_north_m: float) -> "KeyframeState":
+        """The state turned by ``turn_rad`` about a pivot, the pivot then moved to ``(to_east_m, to_north_m)``."""
+        c, s = math.cos(turn_rad), math.sin(turn_rad)
+        de, dn = self.east_m - pivot_east_m, self.north_m - pivot_north_m
+        return KeyframeState(to_east_m + c * de - s * dn, to_north_m + s * de + c * dn, self.yaw_rad + turn_rad,
+                             c * self.v_east_mps - s * self.v_north_mps, s * self.v_east_mps + c * self.v_north_mps, self.bias)
 
 
 def robust(sigma: float | np.ndarray, config: GraphConfig, dim: int = 1, loss: str | None = None, k: float | None = None) -> gtsam.noiseModel.Base:
@@ -164,6 +168,10 @@ class PlanarModel:
         """East, north of keyframe ``k`` in solved values."""
         pose = values.atPose2(X(k))
         return pose.x(), pose.y()
+
+    def yaw(self, values: gtsam.Values, k: int) -> float:
+        """Yaw of keyframe ``k`` in solved values."""
+        return values.atPose2(X(k)).theta()
 
     def pose_key(self, k: int) -> int:
         return X(k)
@@ -345,6 +353,10 @@ class InertialModel:
         """East, north of keyframe ``k`` in solved values."""
         t = values.atPose3(X(k)).translation()
         return float(t[0]), float(t[1])
+
+    def yaw(self, values: gtsam.Values, k: int) -> float:
+        """Yaw of keyframe ``k`` in solved values."""
+        return values.atPose3(X(k)).rotation().yaw()
 
     def pose_key(self, k: int) -> int:
         return X(k)

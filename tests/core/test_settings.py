@@ -42,10 +42,9 @@ def test_parse_errors_say_what_is_wrong(item, message):
 def test_values_take_the_field_type():
     graph = defaults("graph-isam2")["graph-isam2"]
     cfg = apply_settings(graph, {"final": "yes", "batch_max_iterations": "7", "fixed_lag_s": "12.5", "robust_loss": "huber",
-                                 "initial_pose": "1, -2, 0.5"}, "graph-isam2")
+                                 "range_scale_bounds": "0.9, 1.1"}, "graph-isam2")
     assert cfg.final is True and cfg.batch_max_iterations == 7 and cfg.fixed_lag_s == 12.5
-    assert cfg.robust_loss == "huber" and cfg.initial_pose == (1.0, -2.0, 0.5)
-    assert apply_settings(cfg, {"initial_pose": "none"}, "graph-isam2").initial_pose is None
+    assert cfg.robust_loss == "huber" and cfg.range_scale_bounds == (0.9, 1.1)
     fusion = defaults("fusion-ekf")["fusion-ekf"]
     assert apply_settings(fusion, {"lateral_velocity_sigma_mps": "None"}, "fusion-ekf").lateral_velocity_sigma_mps is None
     imm = defaults("imm-stekf")["imm-stekf"]
@@ -61,7 +60,7 @@ def test_values_take_the_field_type():
         ("graph-isam2", "final", "maybe", "expected true or false"),
         ("graph-isam2", "batch_max_iterations", "2.5", "whole number"),
         ("graph-isam2", "fixed_lag_s", "nan", "finite"),
-        ("graph-isam2", "initial_pose", "1,2", "3 comma-separated"),
+        ("graph-isam2", "range_scale_bounds", "1,2,3", "2 comma-separated"),
         ("graph-isam2", "robust_loss", "l1", "graph-isam2: robust_loss must be one of"),
         ("graph-isam2", "fixed_lag_s", "1", "must exceed max_delay_s"),
         ("fusion-ekf", "wheel_sigma_mps", "-1", "wheel_sigma_mps must be a positive"),

@@ -4,6 +4,8 @@
 body accelerations and yaw rate, so a noiseless drive is exactly what the
 filters' model predicts (zero-error test); noisy drives add white sensor
 noise of the paper's magnitudes and range noise growing with distance.
+Like the papers' test drives, each starts with a few seconds of DGPS fixes
+(``gnss``, 0.3 m), which the filters start from (:mod:`graphpos.ignition`).
 """
 
 from pathlib import Path
@@ -26,7 +28,7 @@ def tunnel_tags(length_m=150.0, spacing_m=6.0, half_width_m=3.0):
     return TagMap(ids, east, north, side, group, layouts={"optimized": opt})
 
 
-def make_drive(duration_s=40.0, seed=0, noise=True, turn=True, range_sigma0_m=0.3, range_slope=0.05, late_s=0.0):
+def make_drive(duration_s=40.0, seed=0, noise=True, turn=True, range_sigma0_m=0.3, range_slope=0.05, late_s=0.0, dgps_s=2.0):
     rng = np.random.default_rng(seed)
     dt = 0.01
     n = int(round(duration_s / dt)) + 1
@@ -64,7 +66,12 @@ def make_drive(duration_s=40.0, seed=0, noise=True, turn=True, range_sigma0_m=0.
             rows["true_range_m"].append(d[seen[i]])
             rows["arrival_s"].append(t[k] + late_s)
     rfid = Channel("rfid", rows)
-    return Drive(f"test-{seed}", {"imu": imu, "wheel": wheel, "compass": compass, "rfid": rfid, "truth": truth},
+    channels = {"imu": imu, "wheel": wheel, "compass": compass, "rfid": rfid, "truth": truth}
+    if dgps_s > 0:
+        ig = np.flatnonzero(t <= dgps_s)[::10]
+        channels["gnss"] = Channel("gnss", {"t_s": t[ig], "east_m": x[ig, 0] + s * rng.normal(0, 0.3, ig.size),
+                                            "north_m": x[ig, 1] + s * rng.normal(0, 0.3, ig.size), "sigma_m": np.full(ig.size, 0.3)})
+    return Drive(f"test-{seed}", channels,
                  tags=tags, windows=(Window("in_tunnel", 3.0, duration_s),), params={"seed": seed})
 
 

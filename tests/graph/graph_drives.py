@@ -30,6 +30,11 @@ def synthetic_drive(
     accelerometers: bool = True,
     stop: tuple[float, float] | None = None,
     range_scale: float = 1.0,
+    walls: tuple[int, ...] = (+1, -1),
+    beacons: list[tuple[float, float, int]] | None = None,
+    compass: bool = True,
+    absolute_from_s: float | None = None,
+    turn_after_s: float | None = None,
 ) -> Drive:
     """A vehicle at ``speed_mps`` (turning at ``turn_radps`` after 1/3 of the drive) past wall tags.
 
@@ -37,6 +42,13 @@ def synthetic_drive(
     east axis, and also along the curve's walls; ``tag_gap`` (east interval)
     leaves a stretch without tags. ``stop`` = (start_s, end_s) holds the
     vehicle still. IMU/wheel at 100 Hz, compass 10 Hz, RFID 1 Hz.
+
+    Start-up options: ``walls`` picks the walls that carry tags (+1 left,
+    -1 right, of the initial direction); ``beacons`` replaces the wall tags
+    by explicit ``(east_m, north_m, wall_side)`` tags; ``compass=False``
+    drops the compass; ``absolute_from_s`` drops every range and compass
+    reading before that time (odometry only until then); ``turn_after_s``
+    moves the start of the turn (default: a third of the drive).
     """
     rng = np.random.default_rng(seed)
     dt = 0.01
@@ -47,7 +59,7 @@ def synthetic_drive(
     if stop is not None:
         ramp = np.interp(t, [stop[0] - 2, stop[0], stop[1], stop[1] + 2], [1, 0, 0, 1])
         v *= ramp
-    w = np.where(t > duration_s / 3, turn_radps, 0.0)
+    w = np.where(t > (duration_s / 3 if turn_after_s is None else turn_after_s), turn_radps, 0.0)
     yaw = np.concatenate(([0.0], np.cumsum(w[:-1] * dt)))
     e = np.concatenate(([0.0], np.cumsum(v[:-1] * np.cos(yaw[:-1]) * dt)))
     n = np.concatenate(([0.0], np.cumsum(v[:-1] * np.sin(yaw[:-1]) * dt)))
@@ -58,13 +70,19 @@ def synthetic_drive(
     marks = np.arange(0.0, s[-1] + 10, tag_spacing_m)
     idx = np.clip(np.searchsorted(s, marks), 0, t.size - 1)
     te, tn, side = [], [], []
-    for i in idx:
+    for i in idx if beacons is None else ():
         if tag_gap is not None and tag_gap[0] <= e[i] <= tag_gap[1]:
             continue
         for sd in (+1, -1):
+            if sd not in walls:
+                continue
             te.append(e[i] - sd * 3.0 * np.sin(yaw[i]))
             tn.append(n[i] + sd * 3.0 * np.cos(yaw[i]))
             side.append(sd)
+    for be, bn, bs in beacons or ():
+        te.append(float(be))
+        tn.append(float(bn))
+        side.append(int(bs))
     ids = np.arange(len(te))
     tags = TagMap(ids, np.array(te), np.array(tn), np.array(side), np.full(len(te), -1))
 
@@ -84,21 +102,30 @@ def synthetic_drive(
             rtrue.append(d[j])
             rr.append(max(range_scale * d[j] + (rng.normal(0, RANGE_SIGMA_M) if noise else 0.0), 0.0))
     rt = np.array(rt)
+    if absolute_from_s is not None:
+        late_enough = rt >= absolute_from_s
+        rt, rid, rr, rtrue = rt[late_enough], list(np.array(rid, dtype=np.int64)[late_enough]), list(np.array(rr)[late_enough]), list(np.array(rtrue)[late_enough])
     arrival = rt.copy()
     if rfid_latency_s is not None:
         arrival = rt + np.random.default_rng([seed, 1]).uniform(*rfid_latency_s, rt.size)  # own stream: same sensor noise
         order = np.argsort(rt, kind="stable")
         rt, arrival = rt[order], arrival[order]
+    wheel_speed = noisy(v, 0.1)
+    compass_yaw = noisy(yaw[::10], np.radians(2.0))
+    compass_yaw = np.where(np.abs(compass_yaw) > np.pi, np.angle(np.exp(1j * compass_yaw)), compass_yaw)  # a compass reads wrapped angles
+    heading_seen = tc >= (absolute_from_s if absolute_from_s is not None else -np.inf)
     channels = {
         "imu": Channel("imu", imu_cols),
-        "wheel": Channel("wheel", {"t_s": t, "speed_mps": noisy(v, 0.1)}),
-        "compass": Channel("compass", {"t_s": tc, "yaw_rad": noisy(yaw[::10], np.radians(2.0))}),
-        "rfid": Channel("rfid", {"t_s": rt, "tag_id": np.array(rid), "range_m": np.array(rr), "true_range_m": np.array(rtrue), "arrival_s": arrival}),
+        "wheel": Channel("wheel", {"t_s": t, "speed_mps": wheel_speed}),
+        "compass": Channel("compass", {"t_s": tc[heading_seen], "yaw_rad": compass_yaw[heading_seen]}),
+        "rfid": Channel("rfid", {"t_s": rt, "tag_id": np.array(rid, dtype=np.int64), "range_m": np.array(rr), "true_range_m": np.array(rtrue), "arrival_s": arrival}),
         "truth": Channel(
             "truth",
             {"t_s": t, "east_m": e, "north_m": n, "v_east_mps": v * np.cos(yaw), "v_north_mps": v * np.sin(yaw), "yaw_rad": yaw},
         ),
     }
+    if not compass:
+        del channels["compass"]
     return Drive(f"synthetic-{seed}", channels, tags=tags)
 
 

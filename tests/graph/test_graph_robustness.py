@@ -28,7 +28,7 @@ def rms(errors: np.ndarray) -> float:
 def test_start_up_before_any_range_without_a_start_pose(name, parameterisation):
     # no start pose: the first 20 s (100 m) have no tags, then tags
     drive = synthetic_drive(35, seed=7, tag_gap=(-10.0, 100.0))
-    est = run(name, drive, parameterisation=parameterisation, initial_pose_from_reference=False)
+    est = run(name, drive, parameterisation=parameterisation)
     assert np.all(np.isfinite(est.position))
     first_range_s = drive.rfid.t_s[0]
     # anchored once two tags fix the position unambiguously, within seconds
@@ -138,7 +138,7 @@ def test_rsu_and_gnss_drive_without_a_start_pose():
 
     drive = simulate("urban-rsu-gnss", seed=0, duration_s=120.0)
     for name in ("graph-isam2", "graph-batch"):
-        est = run(name, drive, initial_pose_from_reference=False)
+        est = run(name, drive)
         assert est.diagnostics["anchor_keyframe"] is not None
         assert np.all(np.isfinite(est.position))
         assert rms(position_errors(drive, est)) < 3.5

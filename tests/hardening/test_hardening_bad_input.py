@@ -240,7 +240,6 @@ def test_drive_corpus(capsys, tmp_path, samples, case, command):
 
 
 @pytest.mark.parametrize("command, argv, case", [
-    pytest.param("run", ["run", "{file}", "-e", "dr", "--out-dir", "{out}/run"], "no-truth", id="run-dr-no-truth"),
     pytest.param("run", ["run", "{file}", "-e", "fusion-ekf", "--out-dir", "{out}/run"], "one-second",
                  id="run-fusion-ekf-one-second"),
     pytest.param("evaluate", DRIVE_COMMANDS["evaluate"], "no-truth", id="evaluate-no-truth"),

@@ -1,0 +1,508 @@
+"""Start-up ("ignition"): the first state of every estimator, from the sensors or the user, never the truth.
+
+Filters and factor graphs share this one piece (issue 13). An estimator
+feeds it every measurement until it returns a :class:`StartState`; until
+then the estimator has not started and outputs nothing. The sources, in
+order:
+
+(a) a start pose the user gives (:class:`StartPose`: ``--initial-pose`` on
+    the command line, or ``params["initial_pose"]`` stored in the drive):
+    ready at the first measurement;
+(b) position fixes (``gnss`` rows, ``rsu`` rows that carry a position);
+(c) ranges to tags or RSUs at known positions.
+
+(b) and (c) are solved together, with the compass where the drive has one,
+by robust least squares over the last :attr:`IgnitionConfig.window_s`
+seconds. The unknowns are the pose now (east, north, yaw); every earlier
+reading is placed relative to it by dead reckoning (wheel speed and yaw
+rate, held between samples), whose error is allowed to grow with the
+distance driven since the reading. Without a compass the heading comes from
+the direction of travel, so it waits until the vehicle has moved
+:attr:`IgnitionConfig.min_travel_m`. Several starts (around the latest
+reading's landmark, at several headings) are solved; the start is accepted
+when the best solution is well determined (position and yaw sigmas under
+the configured limits) and no distinct rival fits almost as well. Ranges to
+tags on one wall along a straight road fit the vehicle and its mirror image
+across the wall equally well; a rival behind a wall (outside the band
+between the left-wall and right-wall tags, :func:`between_walls`) is
+dropped explicitly, and any ambiguity that remains makes ignition wait.
+Readings that cannot determine the start whatever their values (fewer
+constraints than unknowns; ranges to one landmark only, with no compass or
+fix for the heading: the track can turn about it) are not solved at all, so
+waiting costs nothing on a drive that never starts.
+
+The papers start every filter from DGPS before the tunnel (song2016 §6):
+the simulated paper scenarios carry a short DGPS-grade ``gnss`` channel on
+the approach, which is source (b).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from graphpos.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class StartPose:
+    """A start pose given by the user, with its 1-sigmas.
+
+    Parameters
+    ----------
+    east_m, north_m : float
+        Position in the drive's local frame.
+    yaw_rad : float
+        Yaw from east, counter-clockwise.
+    position_sigma_m, yaw_sigma_rad : float
+        1-sigmas (default 1 m and 5 degrees).
+    """
+
+    east_m: float
+    north_m: float
+    yaw_rad: float
+    position_sigma_m: float = 1.0
+    yaw_sigma_rad: float = math.radians(5.0)
+
+    def __post_init__(self) -> None:
+        values = (self.east_m, self.north_m, self.yaw_rad, self.position_sigma_m, self.yaw_sigma_rad)
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
+            raise ConfigError(f"initial pose needs finite numbers, got {values}")
+        if abs(self.east_m) > 1e7 or abs(self.north_m) > 1e7:
+            raise ConfigError(f"initial pose ({self.east_m:g}, {self.north_m:g}) m is not a plausible local position")
+        if not (self.position_sigma_m > 0 and self.yaw_sigma_rad > 0):
+            raise ConfigError("initial pose sigmas must be positive")
+
+    @classmethod
+    def parse(cls, text: str) -> "StartPose":
+        """``E,N,YAW_DEG[,SIGMA_M[,SIGMA_YAW_DEG]]`` (metres and degrees) as typed on the command line."""
+        try:
+            values = [float(v) for v in text.split(",")]
+        except ValueError:
+            values = []
+        if len(values) not in (3, 4, 5):
+            raise ConfigError(f"initial pose must be E,N,YAW_DEG[,SIGMA_M[,SIGMA_YAW_DEG]], got '{text}'")
+        e, n, yaw_deg = values[:3]
+        sigma_m = values[3] if len(values) > 3 else 1.0
+        sigma_yaw_deg = values[4] if len(values) > 4 else 5.0
+        return cls(e, n, math.radians(yaw_deg), sigma_m, math.radians(sigma_yaw_deg))
+
+    @classmethod
+    def from_params(cls, params: dict[str, Any]) -> "StartPose | None":
+        """The pose stored in a drive's ``params["initial_pose"]`` (keys as the fields), or None."""
+        stored = params.get("initial_pose")
+        if stored is None:
+            return None
+        if not isinstance(stored, dict) or not {"east_m", "north_m", "yaw_rad"} <= set(stored):
+            raise ConfigError("the drive's params.initial_pose needs east_m, north_m and yaw_rad")
+        known = {f: stored[f] for f in ("east_m", "north_m", "yaw_rad", "position_sigma_m", "yaw_sigma_rad") if f in stored}
+        return cls(**known)
+
+    def to_dict(self) -> dict[str, float]:
+        return {"east_m": self.east_m, "north_m": self.north_m, "yaw_rad": self.yaw_rad,
+                "position_sigma_m": self.position_sigma_m, "yaw_sigma_rad": self.yaw_sigma_rad}
+
+
+@dataclass(frozen=True)
+class StartState:
+    """What ignition gives an estimator: its state at ``t_s`` and the 1-sigmas.
+
+    ``source`` is ``user``, ``fix`` (GNSS/RSU fixes, with the compass or the
+    fix track for heading) or ``ranges``.
+    """
+
+    t_s: float
+    east_m: float
+    north_m: float
+    yaw_rad: float
+    speed_mps: float
+    position_sigma_m: float
+    yaw_sigma_rad: float
+    speed_sigma_mps: float
+    source: str
+
+    @property
+    def v_east_mps(self) -> float:
+        return self.speed_mps * math.cos(self.yaw_rad)
+
+    @property
+    def v_north_mps(self) -> float:
+        return self.speed_mps * math.sin(self.yaw_rad)
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-serialisable summary for diagnostics."""
+        return {"source": self.source, "t_s": self.t_s, "east_m": self.east_m, "north_m": self.north_m,
+                "yaw_rad": self.yaw_rad, "position_sigma_m": self.position_sigma_m, "yaw_sigma_rad": self.yaw_sigma_rad}
+
+
+@dataclass
+class IgnitionConfig:
+    """Tunables of start-up (shared by every estimator).
+
+    Attributes
+    ----------
+    window_s : float
+        Absolute readings used together, s (the last ones).
+    min_travel_m : float
+        Without a compass, distance driven within the window before the
+        heading is taken from the direction of travel.
+    max_position_sigma_m, max_yaw_sigma_rad : float
+        The solution's 1-sigmas must be under these to start.
+    dr_error_per_m : float
+        Dead-reckoning error per metre driven between a reading and now
+        (wheel scale and heading errors of uncalibrated sensors: 5 %).
+    dr_turn_error : float
+        Heading error per radian turned between a reading and now (a
+        turn-rate scale error: MRCLAM's odometry turn rates are several per
+        cent off; 10 %), which moves the reading's place by that angle times
+        its distance from now.
+    compass_sigma_rad : float
+        Compass 1-sigma used here (loose: a start must survive a disturbed compass).
+    ambiguity_m, ambiguity_yaw_rad : float
+        Two solutions farther apart than either are distinct.
+    chi2_margin : float
+        The best solution's chi-square must beat every distinct rival's by this.
+    solve_every_s : float
+        Minimum time between two attempts.
+    speed_sigma_mps : float
+        1-sigma of the start speed taken from the wheel.
+    """
+
+    window_s: float = 60.0
+    min_travel_m: float = 1.0
+    max_position_sigma_m: float = 1.5
+    max_yaw_sigma_rad: float = math.radians(5.0)
+    dr_error_per_m: float = 0.05
+    dr_turn_error: float = 0.1
+    compass_sigma_rad: float = math.radians(5.0)
+    ambiguity_m: float = 2.0
+    ambiguity_yaw_rad: float = math.radians(30.0)
+    chi2_margin: float = 9.0
+    solve_every_s: float = 1.0
+    speed_sigma_mps: float = 0.3
+
+
+#: Speed 1-sigma when the drive has no wheel speed, m/s.
+UNKNOWN_SPEED_SIGMA_MPS = 5.0
+#: Without dead reckoning, readings this close to the latest one are solved together, s.
+NO_DR_WINDOW_S = 1.0
+#: Number of trial headings and trial positions per heading of the multi-start solve.
+_HEADING_STARTS = 8
+_POSITION_STARTS = 6
+
+
+def between_walls(position_en_m: np.ndarray, tags_en_m: np.ndarray, wall_side: np.ndarray) -> bool:
+    """False when a position lies behind a wall: outside the band between the nearest left-wall and right-wall tags.
+
+    A map without tags on both walls says nothing (True).
+    """
+    left, right = tags_en_m[wall_side > 0], tags_en_m[wall_side < 0]
+    if not (left.size and right.size):
+        return True
+    a = left[np.argmin(np.hypot(*(left - position_en_m).T))]
+    b = right[np.argmin(np.hypot(*(right - position_en_m).T))]
+    ab = b - a
+    u = float(np.dot(position_en_m - a, ab) / max(float(np.dot(ab, ab)), 1e-9))
+    return -0.25 <= u <= 1.25
+
+
+def _can_determine(ranges: np.ndarray, fixes: np.ndarray, heading_from_compass: bool, free_heading: bool) -> bool:
+    """False when the readings cannot determine the start whatever their values (no solve needed).
+
+    The solve's information matrix is singular, and ignition would wait
+    after a costly multi-start solve, when (1) there are fewer scalar
+    constraints than unknowns (a range gives one, a fix two, the compass one
+    however many readings: they all bear on the same yaw), or (2) every
+    reading is a range to one landmark and nothing gives the heading:
+    turning the whole track about that landmark changes no range.
+    """
+    unknowns = 2 if free_heading else 3
+    if len(ranges) + 2 * len(fixes) + (1 if heading_from_compass else 0) < unknowns:
+        return False
+    one_landmark = len(ranges) and np.ptp(ranges[:, 1]) == 0 and np.ptp(ranges[:, 2]) == 0
+    return not (one_landmark and not len(fixes) and not heading_from_compass)
+
+
+class Ignition:
+    """Collects measurements until it can give a :class:`StartState` (see the module docstring).
+
+    Parameters
+    ----------
+    tags_en_m, wall_side : arrays
+        The tag map (positions and wall sides) for :func:`between_walls`.
+    user : StartPose or None
+        A given start pose (source (a)).
+    has_wheel : bool
+        Whether wheel speeds will come. Without them there is no dead
+        reckoning: the start speed is unknown, only the readings of the last
+        :data:`NO_DR_WINDOW_S` are solved together, and the heading comes
+        from the compass or is left unknown (yaw 0 with a sigma of pi).
+        With them, dead reckoning starts at the first wheel speed: readings
+        taken before it are not used (they could not be placed: the
+        vehicle's motion until then is unknown, not a standstill).
+    config : IgnitionConfig
+    """
+
+    def __init__(self, tags_en_m: np.ndarray | None = None, wall_side: np.ndarray | None = None, user: StartPose | None = None,
+                 has_wheel: bool = True, config: IgnitionConfig | None = None):
+        self.config = config or IgnitionConfig()
+        self.user = user
+        self.has_wheel = has_wheel
+        self._tags = np.zeros((0, 2)) if tags_en_m is None else np.asarray(tags_en_m, dtype=float).reshape(-1, 2)
+        self._walls = np.zeros(0) if wall_side is None else np.asarray(wall_side)
+        self.state: StartState | None = None
+        self.attempts = 0
+        # dead reckoning in the start frame: time, east, north, yaw, distance driven, angle turned
+        self._t: float | None = None
+        self._pose = np.zeros(5)  # x, y, theta, path length, |turn|
+        self._speed = 0.0
+        self._yaw_rate = 0.0
+        self._track: list[tuple[float, float, float, float, float]] = []
+        # absolute readings: (t_s, kind, payload)
+        self._ranges: list[tuple[float, float, float, float, float]] = []  # t, mark_e, mark_n, range, sigma
+        self._fixes: list[tuple[float, float, float, float]] = []  # t, e, n, sigma
+        self._compass: list[tuple[float, float]] = []  # t, yaw
+        self._last_try = -math.inf
+        self._new = False
+        # with a wheel, dead reckoning starts at its first sample: earlier
+        # readings cannot be placed (the track before it would be a standstill)
+        self._dr_from: float | None = None if has_wheel else -math.inf
+
+    @property
+    def started(self) -> bool:
+        return self.state is not None
+
+    # -- input ------------------------------------------------------------------
+    def _advance(self, t_s: float) -> None:
+        if self._t is None:
+            self._t = t_s
+            self._track.append((t_s, 0.0, 0.0, 0.0, 0.0, 0.0))
+            if self.user is not None:
+                self._start_from_user(t_s)
+            return
+        dt = t_s - self._t
+        if dt <= 0:
+            return
+        x, y, th, s, turned = self._pose
+        x += self._speed * dt * math.cos(th)
+        y += self._speed * dt * math.sin(th)
+        s += abs(self._speed) * dt
+        th += self._yaw_rate * dt
+        turned += abs(self._yaw_rate) * dt
+        self._pose = np.array([x, y, th, s, turned])
+        self._t = t_s
+        self._track.append((t_s, x, y, th, s, turned))
+        horizon = t_s - self.config.window_s - 5.0
+        if len(self._track) > 2048 and self._track[0][0] < horizon:
+            self._track = [p for p in self._track if p[0] >= horizon]
+
+    def at(self, t_s: float) -> StartState | None:
+        """Advance to ``t_s`` without a reading (with a user pose: the start state)."""
+        self._advance(t_s)
+        return self.state
+
+    def speed(self, t_s: float, speed_mps: float) -> StartState | None:
+        self._advance(t_s)
+        self._speed = float(speed_mps)
+        if self._dr_from is None:
+            self._dr_from = float(t_s)
+        return self.state
+
+    def yaw_rate(self, t_s: float, yaw_rate_radps: float) -> StartState | None:
+        self._advance(t_s)
+        self._yaw_rate = float(yaw_rate_radps)
+        return self.state
+
+    def compass(self, t_s: float, yaw_rad: float) -> StartState | None:
+        self._advance(t_s)
+        self._compass.append((float(t_s), float(yaw_rad)))
+        self._new = True
+        return self._try()
+
+    def fix(self, t_s: float, east_m: float, north_m: float, sigma_m: float) -> StartState | None:
+        self._advance(t_s)
+        self._fixes.append((float(t_s), float(east_m), float(north_m), float(sigma_m)))
+        self._new = True
+        self._last_try = -math.inf  # a fix is strong information: try at once
+        return self._try()
+
+    def ranges(self, t_s: float, marks_en_m: np.ndarray, ranges_m: np.ndarray, sigmas_m: np.ndarray) -> StartState | None:
+        """Ranges taken at ``t_s`` to landmarks at ``marks_en_m`` (N, 2)."""
+        self._advance(t_s)
+        marks = np.asarray(marks_en_m, dtype=float).reshape(-1, 2)
+        for (e, n), r, s in zip(marks, np.asarray(ranges_m, dtype=float), np.asarray(sigmas_m, dtype=float)):
+            if math.isfinite(r) and math.isfinite(s) and s > 0:
+                self._ranges.append((float(t_s), float(e), float(n), float(r), float(s)))
+                self._new = True
+        return self._try()
+
+    def finish(self) -> StartState | None:
+        """A last attempt at the end of the drive (whatever the solve period)."""
+        if self.state is None and self._new:
+            self._last_try = -math.inf
+            return self._try()
+        return self.state
+
+    # -- solving ----------------------------------------------------------------
+    def _start_from_user(self, t_s: float) -> None:
+        u = self.user
+        self.state = StartState(t_s, u.east_m, u.north_m, u.yaw_rad, 0.0, u.position_sigma_m, u.yaw_sigma_rad,
+                                self.config.speed_sigma_mps if self.has_wheel else UNKNOWN_SPEED_SIGMA_MPS, "user")
+
+    def _dr_at(self, t_s: np.ndarray) -> np.ndarray:
+        """Dead-reckoned (x, y, theta, path, angle turned) at times (clamped to the track)."""
+        tr = np.asarray(self._track)
+        return np.column_stack([np.interp(t_s, tr[:, 0], tr[:, i]) for i in range(1, 6)])
+
+    def _try(self) -> StartState | None:
+        if self.state is not None:
+            return self.state
+        c = self.config
+        now = self._t
+        if not self._new or now - self._last_try < c.solve_every_s or not (self._fixes or self._ranges):
+            return None
+        if self._dr_from is None:
+            return None  # the wheel has not spoken yet: no dead reckoning to place readings with, no start speed
+        self._last_try = now
+        self._new = False
+        lo = max(now - (c.window_s if self.has_wheel else NO_DR_WINDOW_S), self._dr_from)
+        ranges = np.array([r for r in self._ranges if r[0] >= lo]).reshape(-1, 5)
+        fixes = np.array([f for f in self._fixes if f[0] >= lo]).reshape(-1, 4)
+        compass = np.array([y for y in self._compass if y[0] >= lo]).reshape(-1, 2)
+        self._ranges = [tuple(r) for r in ranges]
+        self._fixes = [tuple(f) for f in fixes]
+        self._compass = [tuple(y) for y in compass]
+        if not (len(fixes) or len(ranges)):
+            return None
+        self.attempts += 1
+        solution = self._solve(ranges, fixes, compass)
+        if solution is None:
+            return None
+        e, n, yaw, sigma_p, sigma_yaw, source = solution
+        speed = self._speed if self.has_wheel else 0.0
+        self.state = StartState(now, e, n, yaw, speed, sigma_p, sigma_yaw,
+                                c.speed_sigma_mps if self.has_wheel else UNKNOWN_SPEED_SIGMA_MPS, source)
+        return self.state
+
+    def _solve(self, ranges: np.ndarray, fixes: np.ndarray, compass: np.ndarray):
+        """Best (east, north, yaw) now, its sigmas and source; None while undetermined or ambiguous."""
+        c = self.config
+        now_dr = self._pose
+        travel = 0.0
+        times = np.concatenate([ranges[:, 0], fixes[:, 0], compass[:, 0]])
+        if times.size:
+            dr = self._dr_at(times)
+            travel = float(now_dr[3] - dr[:, 3].min())
+        heading_from_compass = len(compass) > 0
+        free_heading = not heading_from_compass and not self.has_wheel
+        if not heading_from_compass and self.has_wheel and travel < c.min_travel_m:
+            return None
+        if not _can_determine(ranges, fixes, heading_from_compass, free_heading):
+            return None
+
+        def placed(t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """Each reading's dead-reckoned offset from now (start frame), heading change to now, and DR sigma."""
+            d = self._dr_at(t)
+            rel = d[:, :2] - now_dr[:2]
+            sigma = np.hypot(c.dr_error_per_m * (now_dr[3] - d[:, 3]), c.dr_turn_error * (now_dr[4] - d[:, 4]) * np.hypot(*rel.T))
+            return rel, d[:, 2] - now_dr[2], sigma
+
+        r_rel, _, r_dr = placed(ranges[:, 0]) if len(ranges) else (np.zeros((0, 2)), None, np.zeros(0))
+        f_rel, _, f_dr = placed(fixes[:, 0]) if len(fixes) else (np.zeros((0, 2)), None, np.zeros(0))
+        c_dth = placed(compass[:, 0])[1] if len(compass) else np.zeros(0)
+        r_sig = np.sqrt(ranges[:, 4] ** 2 + r_dr**2) if len(ranges) else np.zeros(0)
+        f_sig = np.sqrt(fixes[:, 3] ** 2 + f_dr**2) if len(fixes) else np.zeros(0)
+        th_now = float(now_dr[2])
+
+        def residual(x: np.ndarray) -> np.ndarray:
+            e, n, yaw = x if x.size == 3 else (x[0], x[1], 0.0)
+            phi = yaw - th_now  # start frame -> local frame
+            cp, sp = math.cos(phi), math.sin(phi)
+            out = []
+            if len(ranges):
+                pe = e + cp * r_rel[:, 0] - sp * r_rel[:, 1]
+                pn = n + sp * r_rel[:, 0] + cp * r_rel[:, 1]
+                out.append((np.hypot(pe - ranges[:, 1], pn - ranges[:, 2]) - ranges[:, 3]) / r_sig)
+            if len(fixes):
+                pe = e + cp * f_rel[:, 0] - sp * f_rel[:, 1]
+                pn = n + sp * f_rel[:, 0] + cp * f_rel[:, 1]
+                out.append((pe - fixes[:, 1]) / f_sig)
+                out.append((pn - fixes[:, 2]) / f_sig)
+            if len(compass):
+                d = yaw + c_dth - compass[:, 1]
+                out.append(np.arctan2(np.sin(d), np.cos(d)) / c.compass_sigma_rad)
+            return np.concatenate(out)
+
+        def jacobian(x: np.ndarray) -> np.ndarray:
+            """d residual / d (east, north[, yaw]), analytic (a numerical one doubled the cost of waiting)."""
+            e, n, yaw = x if x.size == 3 else (x[0], x[1], 0.0)
+            phi = yaw - th_now
+            cp, sp = math.cos(phi), math.sin(phi)
+            rows = []
+            if len(ranges):
+                de = cp * r_rel[:, 0] - sp * r_rel[:, 1]  # reading's offset from now, local frame
+                dn = sp * r_rel[:, 0] + cp * r_rel[:, 1]
+                ue, un = e + de - ranges[:, 1], n + dn - ranges[:, 2]
+                dist = np.maximum(np.hypot(ue, un), 1e-9)
+                ue, un = ue / dist / r_sig, un / dist / r_sig
+                rows.append(np.column_stack([ue, un, un * de - ue * dn]))
+            if len(fixes):
+                de = cp * f_rel[:, 0] - sp * f_rel[:, 1]
+                dn = sp * f_rel[:, 0] + cp * f_rel[:, 1]
+                one, zero = 1.0 / f_sig, np.zeros(len(fixes))
+                rows.append(np.column_stack([one, zero, -dn * one]))
+                rows.append(np.column_stack([zero, one, de * one]))
+            if len(compass):
+                rows.append(np.column_stack([np.zeros((len(compass), 2)), np.full(len(compass), 1.0 / c.compass_sigma_rad)]))
+            J = np.concatenate(rows)
+            return J if x.size == 3 else J[:, :2]
+
+        starts = []
+        if len(fixes):
+            anchors = [fixes[-1, 1:3]]
+        else:
+            last = ranges[-1]
+            anchors = [last[1:3] + last[3] * np.array([math.cos(a), math.sin(a)]) for a in np.linspace(0, 2 * math.pi, _POSITION_STARTS, endpoint=False)]
+        if heading_from_compass:
+            yaws = [float(compass[-1, 1]) + k * math.pi / 2 for k in range(4)]
+        else:
+            yaws = list(np.linspace(-math.pi, math.pi, _HEADING_STARTS, endpoint=False))
+        for a in anchors:
+            if free_heading:
+                starts.append(np.array([a[0], a[1]]))
+                continue
+            for yaw in yaws:
+                starts.append(np.array([a[0], a[1], yaw]))
+        fits = []
+        for x0 in starts:
+            try:
+                fit = least_squares(residual, x0, jac=jacobian, loss="soft_l1", f_scale=2.0, max_nfev=100, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            if np.all(np.isfinite(fit.x)):
+                fits.append(fit)
+        plausible = [f for f in fits if between_walls(f.x[:2], self._tags, self._walls)] if len(self._tags) else fits
+        if not plausible:
+            return None
+        best = min(plausible, key=lambda f: f.cost)
+        J = best.jac
+        info = J.T @ J
+        if np.linalg.cond(info) > 1e10:
+            return None
+        cov = np.linalg.inv(info)
+        sigma_p = math.sqrt(max(cov[0, 0], cov[1, 1]))
+        sigma_yaw = math.pi if free_heading else math.sqrt(cov[2, 2])
+        if sigma_p > c.max_position_sigma_m or (not free_heading and sigma_yaw > c.max_yaw_sigma_rad):
+            return None
+        for f in plausible:
+            dyaw = 0.0 if free_heading else abs(math.remainder(f.x[2] - best.x[2], 2 * math.pi))
+            distinct = np.hypot(*(f.x[:2] - best.x[:2])) > c.ambiguity_m or dyaw > c.ambiguity_yaw_rad
+            if distinct and f.cost - best.cost < c.chi2_margin / 2:
+                return None  # a rival (a mirror image, a turned track) fits almost as well: wait
+        yaw = 0.0 if free_heading else math.remainder(float(best.x[2]), 2 * math.pi)
+        source = "fix" if len(fixes) else "ranges"
+        return float(best.x[0]), float(best.x[1]), yaw, sigma_p, sigma_yaw, source

@@ -1,0 +1,327 @@
+"""graphpos.ignition alone: the start from known geometry, waiting while ambiguous, between_walls, StartPose."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import graphpos.ignition as ignition
+from graphpos.errors import ConfigError
+from graphpos.ignition import Ignition, IgnitionConfig, StartPose, between_walls, UNKNOWN_SPEED_SIGMA_MPS
+
+
+def wall_tags(length_m: float = 200.0, spacing_m: float = 6.0, walls: tuple[int, ...] = (+1, -1)) -> tuple[np.ndarray, np.ndarray]:
+    """Tags every ``spacing_m`` along east at north = +3 (left, +1) and -3 (right, -1)."""
+    pos, side = [], []
+    for x in np.arange(0.0, length_m, spacing_m):
+        for s in walls:
+            pos.append((x, 3.0 * s))
+            side.append(s)
+    return np.array(pos), np.array(side)
+
+
+def feed(ig: Ignition, duration_s: float, speed_mps=5.0, yaw_rate_radps=0.0, heard=None, compass=True, start=(0.0, 0.0, 0.0),
+         seed=0, range_sigma_m=0.2, wheel=True, stop_when_started=True):
+    """Drive a constant speed / yaw rate path past ``heard`` tags (positions), feeding ignition like an estimator.
+
+    Wheel and gyro at 20 Hz, compass (2 deg noise) at 10 Hz, ranges (within
+    9 m) at 1 Hz. Returns (state or None, truth function t -> (e, n, yaw)).
+    ``speed_mps`` may be a function of time.
+    """
+    rng = np.random.default_rng(seed)
+    speed = speed_mps if callable(speed_mps) else (lambda t: speed_mps)
+    dt = 0.05
+    e, n, yaw = start
+    truth = {}
+    state = None
+    for i in range(int(round(duration_s / dt)) + 1):
+        t = i * dt
+        truth[round(t, 6)] = (e, n, yaw)
+        v = speed(t)
+        if wheel:
+            state = ig.speed(t, v + rng.normal(0, 0.02)) or state
+        state = ig.yaw_rate(t, yaw_rate_radps + rng.normal(0, 0.002)) or state
+        if compass and i % 2 == 0:
+            state = ig.compass(t, math.remainder(yaw + rng.normal(0, math.radians(2.0)), 2 * math.pi)) or state
+        if heard is not None and i % 20 == 0:
+            d = np.hypot(heard[:, 0] - e, heard[:, 1] - n)
+            near = d <= 9.0
+            if near.any():
+                r = d[near] + rng.normal(0, range_sigma_m, near.sum())
+                state = ig.ranges(t, heard[near], r, np.full(near.sum(), range_sigma_m)) or state
+        if state is not None and stop_when_started:
+            break
+        e += v * dt * math.cos(yaw)
+        n += v * dt * math.sin(yaw)
+        yaw += yaw_rate_radps * dt
+    return state, (lambda t_s: truth[round(t_s, 6)])
+
+
+def assert_within_sigmas(state, truth, k=4.0):
+    e, n, yaw = truth(state.t_s)
+    assert math.hypot(state.east_m - e, state.north_m - n) < k * state.position_sigma_m, (state, (e, n, yaw))
+    assert abs(math.remainder(state.yaw_rad - yaw, 2 * math.pi)) < k * state.yaw_sigma_rad + 1e-9, (state, (e, n, yaw))
+
+
+# -- known geometry ------------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("seed", range(3))
+def test_both_walls_with_compass_start_within_sigmas(seed):
+    tags, side = wall_tags()
+    ig = Ignition(tags, side)
+    state, truth = feed(ig, 10.0, heard=tags, seed=seed)
+    assert state is not None and state.source == "ranges" and state.t_s <= 2.0
+    assert state.position_sigma_m <= ig.config.max_position_sigma_m and state.yaw_sigma_rad <= ig.config.max_yaw_sigma_rad
+    assert_within_sigmas(state, truth)
+    assert abs(state.speed_mps - 5.0) < 0.2 and state.speed_sigma_mps == ig.config.speed_sigma_mps
+
+
+def test_heading_from_travel_without_compass():
+    """No compass: the heading comes from the direction of travel, once min_travel_m is driven."""
+    tags, side = wall_tags()
+    ig = Ignition(tags, side)
+    state, truth = feed(ig, 10.0, heard=tags, compass=False, yaw_rate_radps=0.02, start=(1.0, 0.5, 0.1))
+    assert state is not None and state.source == "ranges"
+    assert_within_sigmas(state, truth)
+
+
+def test_standing_still_without_compass_waits_then_starts_once_moving():
+    tags, side = wall_tags()
+    ig = Ignition(tags, side)
+    state, _ = feed(ig, 20.0, speed_mps=0.0, heard=tags, compass=False)
+    assert state is None and ig.attempts >= 15  # readings enough, heading unobservable
+    ig = Ignition(tags, side)
+    state, truth = feed(ig, 30.0, speed_mps=lambda t: 0.0 if t < 10.0 else 3.0, heard=tags, compass=False)
+    assert state is not None and state.t_s >= 10.0 + ig.config.min_travel_m / 3.0
+    assert_within_sigmas(state, truth)
+
+
+def test_standing_still_with_compass_starts():
+    tags, side = wall_tags()
+    ig = Ignition(tags, side)
+    state, truth = feed(ig, 10.0, speed_mps=0.0, heard=tags, start=(10.0, 0.0, 0.3))
+    assert state is not None and state.t_s <= 2.0 and abs(state.speed_mps) < 0.1
+    assert_within_sigmas(state, truth)
+
+
+def test_fixes_start_with_the_heading_of_their_track():
+    ig = Ignition()
+    rng = np.random.default_rng(5)
+    state = None
+    for i in range(200):
+        t = i * 0.05
+        ig.speed(t, 4.0)
+        ig.yaw_rate(t, 0.0)
+        if i % 10 == 0:
+            yaw = math.radians(30.0)
+            state = ig.fix(t, 100.0 + 4.0 * t * math.cos(yaw) + rng.normal(0, 0.1), 50.0 + 4.0 * t * math.sin(yaw) + rng.normal(0, 0.1), 0.1)
+        if state:
+            break
+    assert state is not None and state.source == "fix"
+    assert abs(math.degrees(state.yaw_rad) - 30.0) < 3 * math.degrees(state.yaw_sigma_rad)
+    assert math.hypot(state.east_m - (100 + 4 * state.t_s * math.cos(yaw)), state.north_m - (50 + 4 * state.t_s * math.sin(yaw))) < 0.5
+
+
+# -- ambiguity and the wall mirror -------------------------------------------------------------------------------
+def test_one_wall_straight_road_waits():
+    """Left-wall tags only, straight road: the vehicle and its mirror across the wall fit equally well."""
+    tags, side = wall_tags(walls=(+1,))
+    ig = Ignition(tags, side)
+    state, _ = feed(ig, 20.0, heard=tags)
+    assert state is None and ig.attempts >= 15
+
+
+def test_one_wall_heard_both_mapped_drops_the_mirror():
+    """The same readings, with the right wall's tags in the map (failed, never heard): the mirror lies behind the
+    left wall, outside the band between the walls: dropped (between_walls), the start comes, on the road."""
+    tags, side = wall_tags()
+    ig = Ignition(tags, side)
+    state, truth = feed(ig, 20.0, heard=tags[side > 0])
+    assert state is not None and state.t_s <= 3.0
+    assert -3.0 < state.north_m < 3.0
+    assert_within_sigmas(state, truth)
+
+
+def test_a_turn_near_one_wall_resolves_the_mirror():
+    """Ranges to one wall's tags while turning: the mirror image would have turned the other way; with the
+    compass (and the gyro's turn) it no longer fits, and the start comes on the right side."""
+    tags, side = wall_tags(length_m=60.0, walls=(+1,))
+    # drive east 4 s, then turn right (away from the left wall) at 0.2 rad/s
+    ig = Ignition(tags, side)
+    rng = np.random.default_rng(3)
+    e = n = yaw = 0.0
+    state = None
+    for i in range(400):
+        t = i * 0.05
+        w = -0.2 if t > 4.0 else 0.0
+        ig.speed(t, 5.0)
+        ig.yaw_rate(t, w)
+        if i % 2 == 0:
+            state = ig.compass(t, yaw + rng.normal(0, math.radians(2.0))) or state
+        if i % 20 == 0:
+            d = np.hypot(tags[:, 0] - e, tags[:, 1] - n)
+            near = d <= 9.0
+            if near.any():
+                state = ig.ranges(t, tags[near], d[near] + rng.normal(0, 0.2, near.sum()), np.full(near.sum(), 0.2)) or state
+        if state:
+            break
+        e += 5.0 * 0.05 * math.cos(yaw)
+        n += 5.0 * 0.05 * math.sin(yaw)
+        yaw += w * 0.05
+    assert state is not None and state.t_s > 4.0, "started before the turn, on a mirror-ambiguous straight"
+    assert math.hypot(state.east_m - e, state.north_m - n) < 4 * state.position_sigma_m
+    assert abs(math.remainder(state.yaw_rad - yaw, 2 * math.pi)) < 4 * state.yaw_sigma_rad
+
+
+@pytest.mark.parametrize("position, expected", [
+    ((10.0, 0.0), True),  # on the road
+    ((10.0, 2.9), True),  # beside the left wall
+    ((10.0, 4.4), True),  # within the quarter-width margin (u = -0.23)
+    ((10.0, 6.0), False),  # the mirror across the left wall (u = -0.5)
+    ((10.0, -6.0), False),  # the mirror across the right wall (u = 1.5)
+])
+def test_between_walls(position, expected):
+    tags, side = wall_tags()
+    assert between_walls(np.array(position), tags, side) is expected
+
+
+def test_between_walls_says_nothing_without_both_walls():
+    tags, side = wall_tags(walls=(+1,))
+    assert between_walls(np.array([10.0, 6.0]), tags, side)
+    assert between_walls(np.array([10.0, 6.0]), np.zeros((0, 2)), np.zeros(0))
+    beacons = np.array([[0.0, 0.0], [10.0, 0.0]])
+    assert between_walls(np.array([5.0, 50.0]), beacons, np.zeros(2))  # beacons on no wall (side 0)
+
+
+# -- undeterminable readings: no solve at all ---------------------------------------------------------------------
+def _count_solves(monkeypatch) -> list:
+    calls = []
+    real = ignition.least_squares
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(ignition, "least_squares", counted)
+    return calls
+
+
+def test_one_landmark_without_heading_is_never_solved(monkeypatch):
+    """Ranges to one beacon, no compass: turning the track about the beacon changes no range."""
+    calls = _count_solves(monkeypatch)
+    ig = Ignition(np.array([[20.0, 10.0]]), np.zeros(1))
+    state, _ = feed(ig, 30.0, yaw_rate_radps=0.2, heard=np.array([[20.0, 10.0]]), compass=False)
+    assert state is None and ig.attempts > 0 and not calls
+
+
+def test_too_few_constraints_are_never_solved(monkeypatch):
+    """One range and the compass: two constraints for three unknowns."""
+    calls = _count_solves(monkeypatch)
+    ig = Ignition()
+    state = None
+    for i in range(100):
+        t = i * 0.1
+        ig.speed(t, 5.0)
+        ig.yaw_rate(t, 0.0)
+        state = ig.compass(t, 0.0) or state
+        if i == 20:
+            state = ig.ranges(t, np.array([[10.0, 3.0]]), np.array([5.0]), np.array([0.3])) or state
+    assert ig.finish() is None and state is None and not calls
+
+
+def test_one_landmark_with_compass_is_solved(monkeypatch):
+    calls = _count_solves(monkeypatch)
+    beacon = np.array([[10.0, 4.0]])
+    ig = Ignition(beacon, np.zeros(1))
+    feed(ig, 4.0, heard=beacon, compass=True)
+    assert calls and ig.attempts >= 3
+
+
+# -- what arrives first -------------------------------------------------------------------------------------------
+def test_readings_before_the_first_wheel_speed_are_not_used():
+    """Ranges and compass while the vehicle moves but the wheel has not spoken yet: not placeable, not used."""
+    tags, side = wall_tags()
+    ig = Ignition(tags, side)
+    rng = np.random.default_rng(2)
+    state = None
+    for i in range(200):
+        t = i * 0.05
+        e = 5.0 * t
+        if t >= 3.0:
+            state = ig.speed(t, 5.0) or state
+            ig.yaw_rate(t, 0.0)
+        if i % 2 == 0:
+            state = ig.compass(t, rng.normal(0, 0.03)) or state
+        if i % 20 == 0:
+            d = np.hypot(tags[:, 0] - e, tags[:, 1])
+            near = d <= 9.0
+            state = ig.ranges(t, tags[near], d[near] + rng.normal(0, 0.2, near.sum()), np.full(near.sum(), 0.2)) or state
+        if state:
+            break
+    assert state is not None and state.t_s >= 3.0
+    assert math.hypot(state.east_m - 5.0 * state.t_s, state.north_m) < 4 * state.position_sigma_m
+    assert abs(state.speed_mps - 5.0) < 0.1
+
+
+def test_without_wheel_the_speed_is_unknown_and_the_heading_from_the_compass():
+    tags, side = wall_tags()
+    ig = Ignition(tags, side, has_wheel=False)
+    state, truth = feed(ig, 5.0, heard=tags, wheel=False, start=(20.0, 0.0, 0.0))
+    assert state is not None and state.speed_sigma_mps == UNKNOWN_SPEED_SIGMA_MPS and state.speed_mps == 0.0
+    assert_within_sigmas(state, truth)
+
+
+def test_without_wheel_or_compass_the_heading_is_left_unknown():
+    tags, side = wall_tags()
+    ig = Ignition(tags, side, has_wheel=False)
+    state, truth = feed(ig, 5.0, heard=tags, wheel=False, compass=False, start=(20.0, 0.0, 0.0))
+    assert state is not None and state.yaw_rad == 0.0 and state.yaw_sigma_rad == math.pi
+    e, n, _ = truth(state.t_s)
+    assert math.hypot(state.east_m - e, state.north_m - n) < 4 * state.position_sigma_m
+
+
+def test_user_pose_is_the_start_at_the_first_measurement():
+    pose = StartPose(12.0, -3.0, math.radians(90.0), 0.5, math.radians(2.0))
+    ig = Ignition(user=pose)
+    state = ig.speed(7.5, 3.0)
+    assert state is not None and state.source == "user" and state.t_s == 7.5
+    assert (state.east_m, state.north_m, state.yaw_rad, state.position_sigma_m) == (12.0, -3.0, math.radians(90.0), 0.5)
+    # readings change nothing afterwards
+    assert ig.ranges(8.0, np.array([[0.0, 0.0]]), np.array([1.0]), np.array([0.1])) is state
+
+
+def test_finish_makes_a_last_attempt_within_the_solve_period():
+    tags, side = wall_tags()
+    ig = Ignition(tags, side, config=IgnitionConfig(solve_every_s=100.0))
+    for i in range(21):
+        t = i * 0.1
+        ig.speed(t, 0.0)
+        ig.compass(t, 0.0)
+    assert ig.ranges(0.0, tags[:1], np.array([3.0]), np.array([0.2])) is None  # attempted: one range, undetermined
+    assert ig.ranges(2.0, tags[1:4], np.hypot(*tags[1:4].T), np.full(3, 0.2)) is None  # within the solve period: no attempt
+    state = ig.finish()
+    assert state is not None and math.hypot(state.east_m, state.north_m) < 4 * state.position_sigma_m
+
+
+# -- StartPose -------------------------------------------------------------------------------------------------------
+def test_start_pose_parse_and_params():
+    p = StartPose.parse("10, -2.5, 90")
+    assert (p.east_m, p.north_m) == (10.0, -2.5) and p.yaw_rad == pytest.approx(math.pi / 2)
+    assert p.position_sigma_m == 1.0 and p.yaw_sigma_rad == pytest.approx(math.radians(5.0))
+    q = StartPose.parse("1,2,180,0.5,10")
+    assert q.position_sigma_m == 0.5 and q.yaw_sigma_rad == pytest.approx(math.radians(10.0))
+    assert StartPose.from_params({"initial_pose": q.to_dict()}) == q
+    assert StartPose.from_params({}) is None
+
+
+@pytest.mark.parametrize("text", ["1,2", "a,b,c", "1,2,3,4,5,6", "1,2,nan", "1e9,0,0", "0,0,0,-1", "0,0,0,1,0"])
+def test_start_pose_refuses_bad_text(text):
+    with pytest.raises(ConfigError):
+        StartPose.parse(text)
+
+
+@pytest.mark.parametrize("stored", [{"east_m": 1.0}, "1,2,3", {"east_m": 1.0, "north_m": 2.0, "yaw_rad": float("inf")}])
+def test_start_pose_refuses_bad_params(stored):
+    with pytest.raises(ConfigError):
+        StartPose.from_params({"initial_pose": stored})
