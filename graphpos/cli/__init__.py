@@ -23,6 +23,7 @@ _COMMAND_MODULES = (
     "graphpos.cli.drives",
     "graphpos.cli.ranging",
     "graphpos.cli.estimators",
+    "graphpos.cli.calibrate",
     "graphpos.cli.evaluation",
     "graphpos.cli.faults",
 )

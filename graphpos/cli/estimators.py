@@ -1,16 +1,21 @@
 """Commands ``estimators`` (list them) and ``run`` (estimators over one drive).
 
-``graphpos run DRIVE.mcap -e NAME [-e NAME ...] [--layout L] [--range-model F] --out-dir DIR``
+``graphpos run DRIVE.mcap -e NAME [-e NAME ...] [--layout L] [--range-model F] [--initial-pose E,N,YAW_DEG] --out-dir DIR``
 writes into DIR:
 
 - ``NAME.csv`` per estimator (:data:`graphpos.estimate.CSV_COLUMNS`, empty
-  cells where the estimator does not estimate a quantity);
-- ``truth.csv``: the drive's truth at its own rate, same columns;
-- ``run.json``: each estimator's wall time, output rate and diagnostics;
+  cells where the estimator does not estimate a quantity; only the header
+  when it never started: no start pose given and none found in the drive);
+- ``truth.csv``: the drive's truth at its own rate, same columns (when the
+  drive has truth);
+- ``run.json``: the start pose given, and each estimator's wall time, output
+  rate, where it started (``start``, or ``not_started``) and diagnostics;
 - ``estimates.mcap``: the drive with every estimate, for Foxglove.
 
-Every estimator runs before anything is written, and each file is written
-through a temporary file and a rename, so a bad input leaves no output.
+The estimators see the drive without its truth (truth is for scoring only,
+issue 13: :meth:`graphpos.drive.Drive.without_truth`). Every estimator runs
+before anything is written, and each file is written through a temporary
+file and a rename, so a bad input leaves no output.
 """
 
 from __future__ import annotations
@@ -18,9 +23,13 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from graphpos.errors import ConfigError, FileFormatError, naming_file
 from graphpos.estimate import Estimate
+
+if TYPE_CHECKING:
+    from graphpos.ignition import StartPose
 
 
 def register(sub) -> None:
@@ -42,7 +51,35 @@ def register(sub) -> None:
                    help="range model JSON (from `graphpos ranging fit`); default: the drive's default model")
     p.add_argument("--out-dir", type=Path, required=True, metavar="DIR", help="output folder (created if absent)")
     add_settings_options(p)
+    add_initial_pose_option(p)
+    from graphpos.cli.calibrate import add_profile_option
+
+    add_profile_option(p)
     p.set_defaults(func=_run)
+
+
+def add_initial_pose_option(p: argparse.ArgumentParser) -> None:
+    """``--initial-pose``, read back by :func:`initial_pose`."""
+    p.add_argument("--initial-pose", default=None, metavar="E,N,YAW_DEG[,SIGMA_M[,SIGMA_YAW_DEG]]",
+                   help="start every estimator at this pose: east and north in metres (the drive's local frame), "
+                        "yaw from east, counter-clockwise, in degrees, optional 1-sigmas in metres and degrees "
+                        "(default 1 m, 5 deg); write --initial-pose=-5,2,90 when E is negative; default: the "
+                        "drive's stored start pose, else found from the sensors")
+
+
+def initial_pose(args: argparse.Namespace) -> "StartPose | None":
+    """The :class:`~graphpos.ignition.StartPose` of ``--initial-pose``, or None.
+
+    Raises
+    ------
+    ConfigError
+        A value that is not ``E,N,YAW_DEG[,SIGMA_M[,SIGMA_YAW_DEG]]`` with
+        finite, plausible numbers and positive sigmas.
+    """
+    from graphpos.ignition import StartPose
+
+    text = getattr(args, "initial_pose", None)
+    return None if text is None else StartPose.parse(text)
 
 
 def add_settings_options(p: argparse.ArgumentParser) -> None:
@@ -107,7 +144,7 @@ def _run(args: argparse.Namespace) -> int:
     from graphpos.io import read_drive, write_drive
     from graphpos.io.exports import csv_text, write_atomically
     from graphpos.ranging import load_range_model
-    from graphpos.registry import make_estimator
+    from graphpos.registry import make_estimator, start_pose_record
     from graphpos.settings import config_dict
 
     names = list(dict.fromkeys(args.estimators))
@@ -116,13 +153,19 @@ def _run(args: argparse.Namespace) -> int:
     if args.out_dir.exists() and not args.out_dir.is_dir():
         raise FileFormatError(f"{args.out_dir}: exists and is not a folder")
     settings = estimator_settings(args, names)  # before reading a long drive
+    pose = initial_pose(args)
     drive = read_drive(args.drive)
     range_model = load_range_model(args.range_model) if args.range_model else None
-    estimators = [make_estimator(n, settings=settings.get(n), layout=args.layout, range_model=range_model) for n in names]
+    from graphpos.cli.calibrate import profile as profile_of
+
+    sensor_profile = profile_of(args)
+    estimators = [make_estimator(n, settings=settings.get(n), layout=args.layout, range_model=range_model, initial_pose=pose,
+                                 profile=sensor_profile) for n in names]
     with naming_file(args.drive):
         if args.layout:
             drive.tags.layout(args.layout)  # a clear error for an unknown layout
-        estimates = [est.run(drive) for est in estimators]
+        blind = drive.without_truth()  # truth is for scoring only (issue 13)
+        estimates = [est.run(blind) for est in estimators]
 
     outputs: dict[str, str] = {f"{e.name}.csv": csv_text(e) for e in estimates}
     if drive.has("truth"):
@@ -132,8 +175,12 @@ def _run(args: argparse.Namespace) -> int:
         "drive_name": drive.name,
         "layout": args.layout,
         "range_model": str(args.range_model) if args.range_model else None,
+        "initial_pose": start_pose_record(pose),
+        "profile": sensor_profile.to_dict() if sensor_profile is not None else None,
         "estimators": {
             e.name: {
+                "start": e.diagnostics.get("start"),
+                "not_started": e.diagnostics.get("not_started"),
                 "wall_time_s": e.wall_time_s,
                 "realtime_factor": drive.duration_s / e.wall_time_s if e.wall_time_s > 0 else None,
                 "outputs": len(e),
@@ -152,5 +199,6 @@ def _run(args: argparse.Namespace) -> int:
     for fname, text in outputs.items():
         write_atomically(args.out_dir / fname, text)
     for e in estimates:
-        print(f"{e.name:<18} {len(e):6d} outputs  {e.wall_time_s:7.3f} s  -> {args.out_dir / (e.name + '.csv')}")
+        note = "  (not started: no start pose)" if e.diagnostics.get("not_started") else ""
+        print(f"{e.name:<18} {len(e):6d} outputs  {e.wall_time_s:7.3f} s  -> {args.out_dir / (e.name + '.csv')}{note}")
     return 0

@@ -1,10 +1,12 @@
 """Commands ``evaluate``, ``reproduce`` and ``layout-study`` (the ``eval`` package).
 
 Each writes a folder with ``results.json``, ``report.md``, ``report.html`` and
-plots. A run that fails (an estimator not available, or one that raises on a
-drive) is reported in its table cell and in ``results.json``; the command then
-prints a summary of the failures on stderr and exits with status 1. User
-mistakes (bad options, a drive without truth) exit with status 2.
+plots. The estimators see each drive without its truth; the truth only
+scores them (issue 13). A run that fails (an estimator not available, or one
+that raises on a drive) is reported in its table cell and in
+``results.json``; the command then prints a summary of the failures on
+stderr and exits with status 1. User mistakes (bad options, a bad
+``--initial-pose``, a drive without truth) exit with status 2.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import sys
 import time
 from pathlib import Path
 
-from graphpos.cli.estimators import add_settings_options, estimator_settings
+from graphpos.cli.estimators import add_initial_pose_option, add_settings_options, estimator_settings, initial_pose
 
 
 def _add_execution_options(p: argparse.ArgumentParser) -> None:
@@ -35,6 +37,10 @@ def register(sub) -> None:
     p.add_argument("--layout", default=None, help="tag layout the estimators hear (default: every tag)")
     p.add_argument("--range-model", default=None, type=str, metavar="FILE", help="saved range model (JSON)")
     add_settings_options(p)
+    add_initial_pose_option(p)
+    from graphpos.cli.calibrate import add_profile_option
+
+    add_profile_option(p)
     _add_execution_options(p)
     p.set_defaults(func=_evaluate)
 
@@ -83,11 +89,15 @@ def _evaluate(args) -> int:
     started = time.perf_counter()
     names = _names(args.estimators)
     settings = estimator_settings(args, names)
+    from graphpos.cli.calibrate import profile as profile_of
+
+    pose = initial_pose(args)
     if args.range_model is not None and not Path(args.range_model).is_file():
         raise ConfigError(f"range model file {args.range_model} does not exist")
     drives = file_sources(args.drives)
     outcome = evaluate(drives, names, args.output, layout=args.layout, range_model=args.range_model,
-                       workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress, settings=settings)
+                       workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress, settings=settings,
+                       initial_pose=pose, profile=profile_of(args))
     return _finish(outcome, started, "evaluate")
 
 

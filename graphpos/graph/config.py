@@ -16,7 +16,7 @@ from graphpos.estimator import require_positive_numbers
 
 PARAMETERISATIONS = ("auto", "planar", "inertial")
 ROBUST_LOSSES = ("huber", "cauchy", "none")
-RANGE_SCALE_MODES = ("off", "estimate")
+RANGE_SCALE_MODES = ("auto", "off", "estimate")
 WHEEL_SCALE_MODES = ("off", "estimate")
 
 
@@ -60,6 +60,16 @@ class GraphConfig:
         Relative wheel-speed error density (1/sqrt(s)) for the wheel's
         scale error: along-track variance grows by ``(density * v)^2`` per
         second, whatever the wheel rate (see :class:`~graphpos.graph.odometry.PlanarOdometry`).
+    heading_noise_radps_per_sqrt_s : float
+        White heading noise density beyond the gyro's (rad/sqrt(s)), whatever
+        the sample rate; about none by default, graph-batch's
+        self-calibration sets it from the residuals (a sensor profile).
+    turn_scale_density_per_sqrt_s : float
+        Relative turn-rate error density (1/sqrt(s)): heading variance grows
+        by ``(density * yaw_rate)^2`` per second (a turn-rate scale error,
+        :class:`~graphpos.graph.odometry.PlanarOdometry`). 0.02: a gyro's
+        scale is good to a per cent or two; graph-batch estimates the
+        drive's own (:mod:`graphpos.graph.calibration`).
     batch_wheel_drift_factor : float
         ``graph-batch`` with ``wheel_scale="estimate"``: the first batch
         solve, the one the wheel scale is fitted to, uses
@@ -96,16 +106,6 @@ class GraphConfig:
         graph-isam2 0.608 / 0.559 m; 0.3 gave graph-batch 0.359 / 0.275 m
         but graph-isam2 0.648 / 0.637 m (online, the heading then follows
         the gyro too long after a real turn).
-    initial_pose : tuple (east_m, north_m, yaw_rad) or None
-        A given start pose. None: start from the first absolute information
-        (a GNSS/RSU fix or the first tag ranges) and the first compass yaw.
-    initial_pose_from_reference : bool
-        When ``initial_pose`` is None, take the start pose from the drive's
-        reference (truth, else the first GNSS fix) at its first epoch, as the
-        papers' filters do (song2016 §6 starts from DGPS before the tunnel).
-        False: start from the first absolute reading instead.
-    initial_position_sigma_m, initial_yaw_sigma_rad : float
-        1-sigma of the start-up prior.
     max_delay_s : float
         A range/RSU reading arriving up to this late is attached to the
         keyframe of its own timestamp; later ones are dropped (counted).
@@ -118,10 +118,12 @@ class GraphConfig:
         instead of the causal one.
     output_covariance : bool
         Compute the east/north covariance of each output.
-    range_scale : {"off", "estimate"}
-        ``estimate``: self-calibrate a common range scale
+    range_scale : {"auto", "off", "estimate"}
+        ``graph-batch``: ``estimate`` self-calibrates a common range scale
         (``reading = scale * distance``) in an outer loop
-        (:mod:`graphpos.graph.calibration`).
+        (:mod:`graphpos.graph.calibration`); ``auto`` (default) does so when
+        the drive reports ranges and no range model is given (a ranging
+        radio's scale is unknown until calibrated: Plaza's reads 7 % long).
     range_scale_bounds : tuple of float
         Search interval of the scale.
     wheel_scale : {"off", "estimate"}
@@ -133,6 +135,21 @@ class GraphConfig:
         Limits of the wheel scale.
     batch_max_iterations : int
         Levenberg-Marquardt iteration limit of ``graph-batch``.
+    self_calibrate : bool
+        ``graph-batch`` without a sensor profile: a first solve, with
+        odometry noise loosened by ``calibration_odometry_factor`` so the
+        trajectory follows the ranges and fixes, gives the drive's sensor
+        profile (gyro bias, turn-rate and wheel scales, range scale, offset
+        and sigma, noise levels: :func:`~graphpos.graph.calibration.fit_profile`);
+        the second solve uses it. Its ``diagnostics["profile"]`` is what
+        ``graphpos calibrate`` saves.
+    learn_online : bool
+        ``graph-isam2`` without a sensor profile: learn one online from the
+        causal history and correct the readings still to come
+        (:class:`~graphpos.graph.estimators.GraphIsam2`).
+    calibration_odometry_factor : float
+        Factor on the heading noise densities (``heading_drift_sigma_radps``,
+        ``turn_scale_density_per_sqrt_s``) of the first solve.
     """
 
     keyframe_rate_hz: float = 10.0
@@ -151,24 +168,25 @@ class GraphConfig:
     gyro_bias_walk_radps_per_sqrt_s: float = 1e-3
     wheel_speed_sigma_mps: float = 0.1
     wheel_scale_density_per_sqrt_s: float = 0.12
+    heading_noise_radps_per_sqrt_s: float = 1e-4
+    turn_scale_density_per_sqrt_s: float = 0.02
     batch_wheel_drift_factor: float = 2.0
     wheel_rate_hz: float = 100.0
     lateral_slip_sigma_mps: float = 0.05
     heading_drift_sigma_radps: float = math.radians(0.1)
     compass_sigma_rad: float = math.radians(1.5)
-    initial_pose: tuple[float, float, float] | None = None
-    initial_pose_from_reference: bool = True
-    initial_position_sigma_m: float = 0.5
-    initial_yaw_sigma_rad: float = math.radians(3.0)
     max_delay_s: float = 3.0
     fixed_lag_s: float = 10.0
     final: bool = False
     output_covariance: bool = True
-    range_scale: str = "off"
+    range_scale: str = "auto"
     range_scale_bounds: tuple[float, float] = (0.8, 1.25)
     wheel_scale: str = "estimate"
     wheel_scale_bounds: tuple[float, float] = (0.8, 1.25)
     batch_max_iterations: int = 100
+    self_calibrate: bool = True
+    learn_online: bool = True
+    calibration_odometry_factor: float = 5.0
 
     def __post_init__(self) -> None:
         if self.parameterisation not in PARAMETERISATIONS:
@@ -191,5 +209,3 @@ class GraphConfig:
         lo, hi = self.range_scale_bounds
         if not (0 < lo < 1 < hi):
             raise ConfigError(f"range_scale_bounds must bracket 1, got {self.range_scale_bounds}")
-        if self.initial_pose is not None and len(self.initial_pose) != 3:
-            raise ConfigError("initial_pose must be (east_m, north_m, yaw_rad)")

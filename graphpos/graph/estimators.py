@@ -29,7 +29,7 @@ from graphpos.drive import Drive, Measurement
 from graphpos.errors import ConfigError, EstimationError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
-from graphpos.graph.builder import WEAK_POSITION_SIGMA_M, GraphBuilder, Increment
+from graphpos.graph.builder import GraphBuilder, Increment
 from graphpos.graph.config import GraphConfig
 from graphpos.graph.models import KeyframeState, make_model
 from graphpos.graph.smoothers import FixedLagSmoother, Isam2Smoother, ValuesSource, gtsam_error
@@ -38,13 +38,6 @@ from graphpos.graph.smoothers import FixedLagSmoother, Isam2Smoother, ValuesSour
 ANCHOR_ITERATIONS = 4
 
 _CHANNELS = ("imu", "wheel", "compass", "rfid", "rsu", "gnss")
-
-
-def default_range_model_for(drive: Drive):
-    """The drive's default RangeModel (ranging helper's :func:`graphpos.ranging.default_range_model`)."""
-    from graphpos.ranging import default_range_model
-
-    return default_range_model(drive)
 
 
 class _GraphEstimator(Estimator):
@@ -56,8 +49,8 @@ class _GraphEstimator(Estimator):
     def default_config(cls) -> GraphConfig:
         return GraphConfig()
 
-    def __init__(self, config: Any = None, layout: str | None = None, range_model: Any = None):
-        super().__init__(config, layout, range_model)
+    def __init__(self, config: Any = None, layout: str | None = None, range_model: Any = None, initial_pose: Any = None, profile: Any = None):
+        super().__init__(config, layout, range_model, initial_pose, profile)
         if not isinstance(self.config, GraphConfig):
             raise ConfigError(f"{self.name} takes a GraphConfig, got {type(self.config).__name__}")
 
@@ -75,41 +68,27 @@ class _GraphEstimator(Estimator):
 
     # -- online ---------------------------------------------------------------
     def start(self, drive: Drive) -> None:
-        model_range = self.range_model
-        if model_range is None and drive.has("rfid"):
-            model_range = default_range_model_for(drive)
+        model_range = self.resolved_range_model(drive) if drive.has("rfid") else self.range_model
         self.config = _with_drive_rates(self.config, drive)
         self.model = make_model(self.config, drive.has_accelerometers)
         if self.model.name == "inertial" and not drive.has_accelerometers:
             raise MissingChannelError(f"{self.name}: the inertial graph needs accelerometers; drive '{drive.name}' has none (use parameterisation='planar')")
-        self.builder = GraphBuilder(self.config, self.model, drive, model_range, initial_pose=self._initial_pose(drive), **self._builder_options())
+        self.builder = GraphBuilder(self.config, self.model, drive, model_range, initial_pose=self.start_pose(drive), **self._builder_options())
         self.smoother = self._make_smoother(self.model.name)
         self.rows: list[OutputRow] = []
         self.update_times_s: list[float] = []
         self._drive_name = drive.name
 
-    def _initial_pose(self, drive: Drive) -> tuple[float, float, float] | None:
-        """The configured start pose, else the reference's first pose (see GraphConfig)."""
-        if self.config.initial_pose is not None:
-            return tuple(float(x) for x in self.config.initial_pose)
-        if not self.config.initial_pose_from_reference:
-            return None
-        if drive.has("truth"):
-            tr = drive.truth
-            return float(tr.east_m[0]), float(tr.north_m[0]), float(tr.yaw_rad[0])
-        if drive.has("gnss") and drive.has("compass"):
-            return float(drive.gnss.east_m[0]), float(drive.gnss.north_m[0]), float(drive.compass.yaw_rad[0])
-        return None
-
     def process(self, measurement: Measurement) -> list[OutputRow]:
         return self._apply(self.builder.add(measurement))
 
     def _apply(self, increments: list[Increment]) -> list[OutputRow]:
+        """Update the smoother with each released increment; a row per keyframe once started (none before)."""
         out = []
         for inc in increments:
             if inc.released:
                 self._update(inc)
-            out.append(self._row(inc.keyframe))
+                out.append(self._row(inc.keyframe))
         self.rows.extend(out)
         return out
 
@@ -129,13 +108,10 @@ class _GraphEstimator(Estimator):
         state = self.builder.states[k]
         cov = None
         if self.config.output_covariance:
-            if self.builder.anchored:
-                try:
-                    cov = self.model.position_cov(self.smoother.marginal(self.model.pose_key(k)), state)
-                except RuntimeError as exc:
-                    raise gtsam_error(exc, f"{self.name}: marginal covariance of keyframe {k}") from None
-            else:
-                cov = np.eye(2) * WEAK_POSITION_SIGMA_M**2
+            try:
+                cov = self.model.position_cov(self.smoother.marginal(self.model.pose_key(k)), state)
+            except RuntimeError as exc:
+                raise gtsam_error(exc, f"{self.name}: marginal covariance of keyframe {k}") from None
         return _output_row(self.builder.keyframe_time(k), state, cov)
 
     def finish(self) -> Estimate:
@@ -144,6 +120,8 @@ class _GraphEstimator(Estimator):
 
     def _estimate(self, rows: list[OutputRow]) -> Estimate:
         times = np.asarray(self.update_times_s) if self.update_times_s else np.zeros(1)
+        if not self.builder.anchored:
+            self.builder.diagnostics["not_started"] = "no start state: give --initial-pose, or a drive with fixes or ranges while moving"
         diagnostics = {
             **self.builder.diagnostics,
             "parameterisation": self.model.name,
@@ -176,14 +154,67 @@ def _output_row(t_s: float, state: KeyframeState, cov: np.ndarray | None) -> Out
 
 
 class GraphIsam2(_GraphEstimator):
-    """Online iSAM2: one update per keyframe, causal output (``final``: smoothed)."""
+    """Online iSAM2: one update per keyframe, causal output (``final``: smoothed).
+
+    Without a sensor profile it learns one online (``config.learn_online``):
+    :data:`LEARN_FIRST_S` after the start, and then each time the time since
+    the start has doubled, the sensor profile is fitted to the smoothed
+    trajectory so far (:func:`~graphpos.graph.calibration.fit_profile`,
+    and the range scale by :func:`~graphpos.graph.calibration.estimate_range_scale`
+    when graph-batch would estimate it) and applied to the readings still
+    to come (:meth:`GraphBuilder.recalibrate`). Only data received so far is
+    used: the output stays causal. The doubling keeps the learning's cost a
+    small multiple of one batch solve of the drive.
+    """
 
     name = "graph-isam2"
     summary = "GTSAM iSAM2 factor graph, one update per 10 Hz keyframe; causal output (final=True: smoothed)"
 
+    def start(self, drive: Drive) -> None:
+        super().start(drive)
+        self._next_learn_s = None if (self.profile is not None or not self.config.learn_online) else LEARN_FIRST_S
+        self._learnt_k = 0
+        self._learning: list[dict] = []
+
+    def _apply(self, increments: list[Increment]) -> list[OutputRow]:
+        out = super()._apply(increments)
+        start = self.builder.diagnostics.get("anchor_keyframe")
+        if out and self._next_learn_s is not None and start is not None:
+            k = self.builder.last_keyframe  # every closed keyframe is in the smoother now
+            if (k - start) * self.builder.period_s >= self._next_learn_s:
+                self._learn(k)
+                self._next_learn_s *= 2.0
+        return out
+
+    def _learn(self, k: int) -> None:
+        from graphpos.graph.calibration import estimate_range_scale, fit_profile
+
+        b = self.builder
+        what = f"{self.name} on '{self._drive_name}' (learning at keyframe {k})"
+        values = self.smoother.estimate()
+        scale = b.range_scale
+        reported = getattr(b.range_model, "input_column", None) == "range_m"
+        if self.range_model is None and reported and self.config.range_scale != "off" and b.range_records:
+            scale, _ = estimate_range_scale(b, values, self.config, what)
+        found = fit_profile(b, values, self.config, self._drive_name, since_keyframe=self._learnt_k)
+        if found is None:
+            return
+        corrections = b.corrections.combined(dataclasses.replace(found, range_scale=1.0, range_offset_m=0.0))
+        range_model = found.range_model() if reported and self.range_model is None else None
+        b.recalibrate(corrections, scale, range_model)
+        self._learnt_k = k
+        self._learning.append({"keyframe": k, "range_scale": scale, "gyro_bias_radps": corrections.gyro_bias_radps,
+                               "yaw_rate_scale": corrections.yaw_rate_scale, "wheel_scale": corrections.wheel_scale})
+
+    def _estimate(self, rows: list[OutputRow]) -> Estimate:
+        est = super()._estimate(rows)
+        if getattr(self, "_learning", None):
+            est.diagnostics["online_calibration"] = self._learning
+        return est
+
     def finish(self) -> Estimate:
         self._apply(self.builder.flush())
-        if not self.config.final:
+        if not self.config.final or not self.builder.anchored:
             return self._estimate(self.rows)
         try:
             self.smoother.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), {}, ANCHOR_ITERATIONS)
@@ -236,6 +267,43 @@ class GraphBatch(_GraphEstimator):
     def _builder_options(self) -> dict[str, Any]:
         return {"max_delay_s": math.inf}
 
+    def run(self, drive: Drive) -> Estimate:
+        """One solve with a given profile; else self-calibration (``config.self_calibrate``): two.
+
+        The first solve (odometry loosened, range and wheel scales estimated)
+        gives the drive's sensor profile; the second solves the corrected
+        drive with the profile's noise levels. Its diagnostics carry the
+        profile (``profile``) and the first solve's figures (``calibration_pass``).
+        """
+        if self.profile is not None or not self.config.self_calibrate:
+            return super().run(drive)
+        import time
+
+        from graphpos.graph.calibration import fit_profile
+
+        c = self.config
+        t0 = time.perf_counter()
+        loose = dataclasses.replace(c, self_calibrate=False, output_covariance=False,
+                                    heading_drift_sigma_radps=c.heading_drift_sigma_radps * c.calibration_odometry_factor,
+                                    turn_scale_density_per_sqrt_s=c.turn_scale_density_per_sqrt_s * c.calibration_odometry_factor)
+        first = GraphBatch(loose, self.layout, self.range_model, self.initial_pose)
+        first_estimate = first.run(drive)
+        if not first.builder.anchored or not first.builder.odometry_records:
+            return first_estimate.with_wall_time(time.perf_counter() - t0)
+        profile = fit_profile(first.builder, first.values, first.config, drive.name)
+        if profile is None:  # too short a drive, or no motion, to calibrate on: one plain solve
+            plain = GraphBatch(dataclasses.replace(c, self_calibrate=False), self.layout, self.range_model, self.initial_pose)
+            est = plain.run(drive)
+            self.builder, self.model, self.values, self.config = plain.builder, plain.model, getattr(plain, "values", None), plain.config
+            return est.with_wall_time(time.perf_counter() - t0)
+        final = GraphBatch(dataclasses.replace(c, self_calibrate=False, range_scale="off", wheel_scale="off"), self.layout,
+                           self.range_model, self.initial_pose, profile)
+        est = final.run(drive)
+        self.builder, self.model, self.values, self.config = final.builder, final.model, getattr(final, "values", None), final.config
+        diagnostics = {**est.diagnostics, "profile": profile.to_dict(), "range_scale": profile.range_scale, "wheel_scale": profile.wheel_scale,
+                       "calibration_pass": {k: first_estimate.diagnostics.get(k) for k in ("range_scale", "wheel_scale", "range_scale_solves")}}
+        return dataclasses.replace(est, diagnostics=diagnostics, wall_time_s=time.perf_counter() - t0)
+
     def start(self, drive: Drive) -> None:
         super().start(drive)
         self._pending: Increment | None = None
@@ -268,13 +336,15 @@ class GraphBatch(_GraphEstimator):
 
         self._apply(self.builder.flush())
         self._flush_pending()
+        if not self.builder.anchored:
+            return self._estimate([])
         try:
             initial = self.smoother.estimate()
         except RuntimeError as exc:
             raise gtsam_error(exc, f"{self.name}: initial estimate") from None
         what = f"{self.name} on '{self._drive_name}'"
         fit_wheel = self.config.wheel_scale == "estimate" and self.builder.odometry_records and self.builder.odometry.has_speed
-        if self.config.range_scale == "estimate" and self.builder.range_records:
+        if self._estimates_range_scale() and self.builder.range_records:
             # the range scale first: the causal pass's ranges (unscaled) would
             # pass their scale error on to the wheel's
             scale, initial = estimate_range_scale(self.builder, initial, self.config, what)
@@ -291,11 +361,18 @@ class GraphBatch(_GraphEstimator):
             self._fit_wheel_scale(initial)
         graph = self.builder.graph()
         values = optimise(graph, initial, self.config, what)
+        self.values = values
         covs = None
         if self.config.output_covariance:
             covs = marginal_covariances(graph, values, [self.model.pose_key(k) for k in range(self.builder.last_keyframe + 1)], what)
         return self._estimate(_rows_from_values(self.model, self.builder, values, covs))
 
+
+    def _estimates_range_scale(self) -> bool:
+        """``range_scale`` "estimate", or "auto" with reported ranges and no range model given."""
+        mode = self.config.range_scale
+        reported = getattr(self.builder.range_model, "input_column", None) == "range_m"
+        return mode == "estimate" or (mode == "auto" and self.range_model is None and reported)
 
     def _fit_wheel_scale(self, values: gtsam.Values) -> None:
         """Self-calibrate the wheel scale on a drift-tolerant batch solve.
@@ -312,6 +389,9 @@ class GraphBatch(_GraphEstimator):
         self.builder.wheel_scale = min(max(self.builder.fit_wheel_scale(values), lo), hi)
         self.builder.diagnostics["wheel_scale"] = self.builder.wheel_scale
 
+
+#: graph-isam2's first online calibration, s after the start (then at 2x, 4x ... this).
+LEARN_FIRST_S = 15.0
 
 #: Span of keyframes per iSAM2 update in graph-batch's seeding pass, s.
 BATCH_PASS_CHUNK_S = 5.0

@@ -68,6 +68,16 @@ class PlanarOdometry:
         drive), which white per-sample noise cannot cover: its along-track
         drift grows with the distance driven, not with the sample count,
         so this term is the same at any wheel rate (Plaza 5 Hz, sim 100 Hz).
+    heading_density : float
+        White heading noise density beyond the gyro's, rad/sqrt(s): heading
+        variance grows by its square per second, whatever the sample rate
+        (the residual heading noise :func:`graphpos.graph.calibration.fit_profile`
+        measures).
+    turn_scale_density : float
+        Density of a relative turn-rate error, 1/sqrt(s): adds
+        ``(density * w)^2`` (rad/s)^2 * s to the heading's variance growth, for
+        a turn-rate sensor whose scale is off (odometry turn rates several
+        per cent off; like ``speed_scale_density``, independent of the rate).
     has_speed, has_yaw_rate : bool
         Whether the drive gives wheel speed / yaw rate. Without wheel speed
         the speed is unknown (held at 0 with a large sigma); without a gyro
@@ -85,6 +95,8 @@ class PlanarOdometry:
         slip_density: float,
         heading_drift_sigma_radps: float,
         speed_scale_density: float = 0.0,
+        heading_density: float = 0.0,
+        turn_scale_density: float = 0.0,
         has_speed: bool = True,
         has_yaw_rate: bool = True,
     ):
@@ -93,6 +105,8 @@ class PlanarOdometry:
         self.slip_var = slip_density**2
         self.drift_var = heading_drift_sigma_radps**2
         self.scale_var = speed_scale_density**2
+        self.turn_scale_var = turn_scale_density**2
+        self.heading_var = heading_density**2
         self.has_speed = has_speed
         self.has_yaw_rate = has_yaw_rate
         self.speed_mps = 0.0
@@ -134,13 +148,16 @@ class PlanarOdometry:
         w = np.asarray(self._w)
         self._dt, self._v, self._w = [], [], []
         unit_scale_var = v**2 / np.maximum(dt, 1e-9) if self.has_speed else np.zeros(dt.shape)
-        return integrate(dt, v, w, self._variances(dt), unit_scale_var, self.scale_var)
+        return integrate(dt, v, w, self._variances(dt, w), unit_scale_var, self.scale_var)
 
-    def _variances(self, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _variances(self, dt: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Per-segment variances of (speed, yaw rate, lateral speed), white noise held over dt."""
         safe = np.maximum(dt, 1e-9)
         sv = self.speed_var / safe if self.has_speed else np.full(dt.shape, self.UNMEASURED_SPEED_SIGMA_MPS**2)
-        sw = self.yaw_rate_var / safe if self.has_yaw_rate else np.full(dt.shape, self.UNMEASURED_YAW_RATE_SIGMA_RADPS**2)
+        if self.has_yaw_rate:
+            sw = (self.yaw_rate_var + self.heading_var + self.turn_scale_var * w * w) / safe
+        else:
+            sw = np.full(dt.shape, self.UNMEASURED_YAW_RATE_SIGMA_RADPS**2)
         return sv, sw + self.drift_var, self.slip_var / safe
 
 

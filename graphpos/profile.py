@@ -1,0 +1,176 @@
+"""A sensor profile: the calibration of one sensor set, found on one drive and reused on the next.
+
+Real sensors read off in ways the papers' models do not carry: a gyro with a
+turn-on bias, a turn rate or a wheel speed off by a scale, ranges that read
+long. A :class:`SensorProfile` holds those corrections and the range noise
+level, estimated from a drive without its truth (``graph-batch`` does it
+offline, :mod:`graphpos.graph.calibration`; ``graphpos calibrate DRIVE -o
+profile.json`` saves it) and applied to a drive's readings before any
+estimator, filter or graph, sees them (``--profile profile.json``). The
+readings are corrected rather than the models changed, so the papers'
+state vectors stay as printed:
+
+- yaw rate: ``(reading - gyro_bias_radps) / yaw_rate_scale``
+  (``reading = yaw_rate_scale * true + gyro_bias_radps``);
+- wheel speed: ``reading / wheel_scale``;
+- reported ranges (``rfid.range_m``): ``(reading - range_offset_m) / range_scale``,
+  with 1-sigma ``range_sigma0_m + range_sigma_slope * distance``
+  (:meth:`SensorProfile.range_model`). RSS readings are left to their RSS
+  model (itself a calibration).
+
+Its noise levels go to every estimator config that has the matching field
+(:meth:`SensorProfile.tuned`): the heading noise the yaw-rate sensor leaves
+after correction (a density; the graph's ``heading_noise_radps_per_sqrt_s``,
+song2016's ``yaw_model_psd_rad2ps``) and the
+part proportional to the turn (``turn_scale_density_per_sqrt_s``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import os
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from graphpos.drive import Drive
+from graphpos.errors import ConfigError, FileFormatError
+
+#: Plausible limits of each correction; a profile outside them is refused.
+_LIMITS = {
+    "gyro_bias_radps": (-0.2, 0.2),
+    "yaw_rate_scale": (0.5, 2.0),
+    "wheel_scale": (0.5, 2.0),
+    "range_scale": (0.5, 2.0),
+    "range_offset_m": (-10.0, 10.0),
+}
+
+
+@dataclass(frozen=True)
+class SensorProfile:
+    """Corrections and noise levels of one sensor set (see the module docstring).
+
+    Attributes
+    ----------
+    gyro_bias_radps, yaw_rate_scale : float
+        The yaw-rate sensor (gyro or odometry turn rate).
+    wheel_scale : float
+        The wheel speed.
+    range_scale, range_offset_m : float
+        Reported ranges.
+    range_sigma0_m, range_sigma_slope : float or None
+        1-sigma of a corrected range at zero distance and its growth per
+        metre; None: the drive's default range model's.
+    heading_noise_radps_per_sqrt_s : float or None
+        Heading random walk the corrected yaw rate leaves (rad/sqrt(s));
+        None: the estimators' defaults.
+    turn_scale_density_per_sqrt_s : float or None
+        Heading error per radian turned, as a density (1/sqrt(s)): the
+        corrected turn rate's remaining scale error. None: defaults.
+    source : dict
+        Where the profile comes from (drive name, estimator, figures).
+    """
+
+    gyro_bias_radps: float = 0.0
+    yaw_rate_scale: float = 1.0
+    wheel_scale: float = 1.0
+    range_scale: float = 1.0
+    range_offset_m: float = 0.0
+    range_sigma0_m: float | None = None
+    range_sigma_slope: float | None = None
+    heading_noise_radps_per_sqrt_s: float | None = None
+    turn_scale_density_per_sqrt_s: float | None = None
+    source: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name, (lo, hi) in _LIMITS.items():
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
+                raise ConfigError(f"sensor profile: {name} = {value!r} is outside the plausible range [{lo:g}, {hi:g}]")
+        for name in ("range_sigma0_m", "range_sigma_slope", "heading_noise_radps_per_sqrt_s", "turn_scale_density_per_sqrt_s"):
+            value = getattr(self, name)
+            if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ConfigError(f"sensor profile: {name} must be a non-negative number or null, got {value!r}")
+
+    # -- use ----------------------------------------------------------------------
+    def correct(self, drive: Drive) -> Drive:
+        """The drive with its yaw rates, wheel speeds and reported ranges corrected."""
+        channels = dict(drive.channels)
+        if "imu" in channels and (self.gyro_bias_radps != 0.0 or self.yaw_rate_scale != 1.0):
+            imu = channels["imu"]
+            channels["imu"] = imu.replace(yaw_rate_radps=(imu.yaw_rate_radps - self.gyro_bias_radps) / self.yaw_rate_scale)
+        if "wheel" in channels and self.wheel_scale != 1.0:
+            channels["wheel"] = channels["wheel"].replace(speed_mps=channels["wheel"].speed_mps / self.wheel_scale)
+        if "rfid" in channels and (self.range_scale != 1.0 or self.range_offset_m != 0.0):
+            rfid = channels["rfid"]
+            corrected = np.maximum((rfid.range_m - self.range_offset_m) / self.range_scale, 0.0)
+            channels["rfid"] = rfid.replace(range_m=np.where(np.isfinite(rfid.range_m), corrected, np.nan))
+        return drive.replace(channels=channels)
+
+    def tuned(self, config: Any) -> Any:
+        """``config`` with the profile's noise levels in the fields it has (see the module docstring)."""
+        values: dict[str, float] = {}
+        h, turn = self.heading_noise_radps_per_sqrt_s, self.turn_scale_density_per_sqrt_s
+        if h is not None:
+            values["heading_noise_radps_per_sqrt_s"] = h
+            values["yaw_model_psd_rad2ps"] = h * h
+        if turn is not None:
+            values["turn_scale_density_per_sqrt_s"] = turn
+        names = {f.name for f in dataclasses.fields(config)}
+        values = {k: max(v, 1e-9) for k, v in values.items() if k in names}
+        return dataclasses.replace(config, **values) if values else config
+
+    def range_model(self):
+        """A LinearCalibration with the profile's range sigma (for the corrected ranges), or None."""
+        if self.range_sigma0_m is None:
+            return None
+        from graphpos.ranging.model import LinearCalibration
+
+        return LinearCalibration(sigma0_m=max(self.range_sigma0_m, 1e-3), sigma_slope=self.range_sigma_slope or 0.0)
+
+    def combined(self, later: "SensorProfile") -> "SensorProfile":
+        """This profile followed by ``later`` (found on readings this one had corrected): one profile for raw readings."""
+        return dataclasses.replace(
+            later,
+            gyro_bias_radps=self.gyro_bias_radps + self.yaw_rate_scale * later.gyro_bias_radps,
+            yaw_rate_scale=self.yaw_rate_scale * later.yaw_rate_scale,
+            wheel_scale=self.wheel_scale * later.wheel_scale,
+            range_scale=self.range_scale * later.range_scale,
+            range_offset_m=self.range_offset_m + self.range_scale * later.range_offset_m,
+        )
+
+    # -- files ----------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        return {"kind": "graphpos-sensor-profile", **dataclasses.asdict(self)}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "SensorProfile":
+        if not isinstance(data, dict) or data.get("kind") != "graphpos-sensor-profile":
+            raise ConfigError("not a graphpos sensor profile (no \"kind\": \"graphpos-sensor-profile\")")
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(data) - known - {"kind"})
+        if unknown:
+            raise ConfigError(f"sensor profile: unknown field(s) {', '.join(unknown)}")
+        return cls(**{k: v for k, v in data.items() if k in known})
+
+    def save(self, path: str | os.PathLike) -> None:
+        from graphpos.io.files import atomic_output
+
+        with atomic_output(path) as f:
+            f.write((json.dumps(self.to_dict(), indent=1) + "\n").encode())
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "SensorProfile":
+        from graphpos.errors import naming_file
+        from graphpos.io.files import read_input
+
+        raw = read_input(path)
+        try:
+            data = json.loads(raw.decode("utf-8"))
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise FileFormatError(f"{path}: not a JSON sensor profile ({exc})") from None
+        with naming_file(path):
+            return cls.from_dict(data)
