@@ -8,10 +8,16 @@ Output folder layout::
     <drive>/<estimator>.tum|.kml|.geojson|.csv   per-estimator exports
     <drive>/all_estimates.kml  every track in one Google Earth file
     <drive>/<drive>.mcap       the drive, its truth and every estimate (Foxglove)
+
+Truth is for scoring only (issue 13): the workers hand every estimator the
+drive without its truth (:meth:`graphpos.drive.Drive.without_truth`) and
+score its output against the full drive afterwards
+(:func:`eval.execution.run_job`).
 """
 
 from __future__ import annotations
 
+import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +31,7 @@ from graphpos.drive import Drive
 from graphpos.errors import MissingChannelError, naming_file
 from graphpos.io import read_drive, write_drive
 from graphpos.io.exports import export_estimate, kml_text, write_atomically
+from graphpos.registry import start_pose_record
 
 
 @dataclass
@@ -60,6 +67,8 @@ def result_record(r: JobResult) -> dict[str, Any]:
         "range_model": r.job.range_model if isinstance(r.job.range_model, (str, type(None))) else repr(r.job.range_model),
         "tag": r.job.tag,
         "settings": r.job.settings,
+        "initial_pose": start_pose_record(r.job.initial_pose),
+        "start": (r.metrics or {}).get("diagnostics", {}).get("start"),
         "config": r.config,
         "metrics": r.metrics,
         "error": r.error,
@@ -83,6 +92,10 @@ def window_table(results: list[JobResult], window: str) -> tuple[list[str], list
     for r in results:
         if not r.ok:
             rows.append([r.job.estimator, cell_error(r)] + [""] * (len(header) - 2))
+            continue
+        not_started = (r.metrics.get("diagnostics") or {}).get("not_started")
+        if not_started and r.metrics["n_outputs"] == 0:
+            rows.append([r.job.estimator, f"not started: {not_started}"] + [""] * (len(header) - 2))
             continue
         w = r.metrics["windows"].get(window)
         if w is None:
@@ -122,7 +135,8 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
             line = wheel_line(results, window)
             if line:
                 sec.text(line)
-    estimates = [r.estimate for r in results if r.ok and r.estimate is not None]
+    # an estimator that never started (no start pose found) has no track to plot or export
+    estimates = [r.estimate for r in results if r.ok and r.estimate is not None and len(r.estimate)]
     if estimates:
         sec.figure(plots.trajectories(drive, estimates, sub / "trajectories.png", layout=layout))
         sec.figure(plots.error_vs_time(drive, estimates, sub / "error_vs_time.png"))
@@ -141,8 +155,9 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
 
 def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Path, layout: str | None = None,
              range_model: Any = None, workers: int | None = None, scheduler: str | None = None,
-             progress: bool = True, mcap: bool = True, settings: dict[str, dict[str, str]] | None = None) -> Outcome:
-    """Run ``estimators`` on ``drives`` and write the evaluation folder.
+             progress: bool = True, mcap: bool = True, settings: dict[str, dict[str, str]] | None = None,
+             initial_pose: Any = None, profile: Any = None) -> Outcome:
+    """Run ``estimators`` on ``drives`` (without their truth) and write the evaluation folder.
 
     Parameters
     ----------
@@ -157,6 +172,13 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
     settings : dict, optional
         ``{estimator name: {key: value text}}`` changes to the estimators'
         default configs (:mod:`graphpos.settings`); stated in the report.
+    initial_pose : graphpos.ignition.StartPose, optional
+        The user's start pose (``--initial-pose``), given to every estimator
+        on every drive; recorded in results.json (``initial_pose``) and the
+        report. Each run's ``start`` in results.json says where it started.
+    profile : graphpos.profile.SensorProfile, optional
+        A sensor profile (``--profile``) for every estimator; recorded in
+        results.json (``profile``).
     """
     settings = settings or {}
     for source, drive in drives:
@@ -168,8 +190,8 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     jobs = [
-        Job(source, name, layout=layout, range_model=range_model, settings=settings.get(name, {}), keep_estimate=True,
-            tag={"drive_index": i})
+        Job(source, name, layout=layout, range_model=range_model, settings=settings.get(name, {}),
+            initial_pose=initial_pose, profile=profile, keep_estimate=True, tag={"drive_index": i})
         for i, (source, _) in enumerate(drives)
         for name in estimators
     ]
@@ -181,6 +203,10 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
         "chi-square band for independent epochs. RTF = wall time / drive duration."
         + "".join(f" {name} settings: " + ", ".join(f"{k}={v}" for k, v in changed.items()) + "."
                   for name, changed in settings.items())
+        + (f" Start pose given: east {initial_pose.east_m:g} m, north {initial_pose.north_m:g} m, yaw "
+           f"{math.degrees(initial_pose.yaw_rad):g} deg (1-sigma {initial_pose.position_sigma_m:g} m, "
+           f"{math.degrees(initial_pose.yaw_sigma_rad):g} deg)." if initial_pose is not None else "")
+        + " Estimators see each drive without its truth; the truth only scores them."
     )
     used: set[str] = set()
     for i, (_, drive) in enumerate(drives):
@@ -190,7 +216,8 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
         used.add(stem)
         add_drive_sections(report, drive, mine, folder / stem, layout=layout)
         if mcap:
-            # graphpos.io.write_drive writes atomically
+            # graphpos.io.write_drive writes atomically (the folder exists only if a run gave figures)
+            (folder / stem).mkdir(parents=True, exist_ok=True)
             write_drive(folder / stem / f"{stem}.mcap", drive, estimates=[r.estimate for r in mine if r.ok])
     add_failure_section(report, results)
     write_json(folder / "results.json", {
@@ -199,6 +226,8 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
         "estimators": estimators,
         "settings": settings,
         "layout": layout,
+        "initial_pose": start_pose_record(initial_pose),
+        "profile": profile.to_dict() if profile is not None else None,
         "drives": [describe_source(s) | {"name": d.name, "params": d.params} for s, d in drives],
         "results": [result_record(r) for r in results],
     })

@@ -4,7 +4,9 @@ A job names where its drive comes from (a file, a simulation recipe, or the
 drive itself) rather than carrying it, so a sweep of hundreds of simulated
 drives ships a few bytes per job and each worker builds its drive, keeping
 a small cache so that several estimators on the same drive do not rebuild it.
-The worker scores the estimate against the truth itself
+The worker hands the estimator the drive without its truth
+(:meth:`graphpos.drive.Drive.without_truth`: truth is for scoring only,
+issue 13), scores the estimate against the full drive afterwards
 (:func:`eval.metrics.evaluate_estimate`) and sends back the figures, and the
 estimate only when asked (plots and exports need it; big sweeps do not).
 
@@ -114,6 +116,11 @@ class Job:
     settings : dict
         ``{key: value text}`` changes to the estimator's default config
         (:mod:`graphpos.settings`).
+    initial_pose : graphpos.ignition.StartPose, optional
+        A start pose the user gives (``--initial-pose``), passed to the
+        estimator; None: the drive's stored one, else ignition.
+    profile : graphpos.profile.SensorProfile, optional
+        A sensor profile (``--profile``), passed to the estimator.
     keep_estimate : bool
         Send the estimate back (for plots and exports).
     tag : dict
@@ -125,6 +132,8 @@ class Job:
     layout: str | None = None
     range_model: Any = None
     settings: dict[str, str] = field(default_factory=dict)
+    initial_pose: Any = None
+    profile: Any = None
     keep_estimate: bool = False
     tag: dict[str, Any] = field(default_factory=dict)
 
@@ -163,7 +172,7 @@ def _range_model(spec: Any) -> Any:
 
 
 def run_job(job: Job) -> JobResult:
-    """Build the drive and the estimator, run, score; never raises."""
+    """Build the drive and the estimator, run it on the drive without truth, score against the truth; never raises."""
     from eval.metrics import evaluate_estimate
     from graphpos.registry import make_estimator
     from graphpos.settings import config_dict
@@ -173,10 +182,11 @@ def run_job(job: Job) -> JobResult:
         drive = load_drive(job.source)
         result.drive_name = drive.name
         result.drive_params = dict(drive.params)
-        est = make_estimator(job.estimator, settings=job.settings, layout=job.layout, range_model=_range_model(job.range_model))
+        est = make_estimator(job.estimator, settings=job.settings, layout=job.layout, range_model=_range_model(job.range_model),
+                             initial_pose=job.initial_pose, profile=job.profile)
         result.config = config_dict(est.config)
         t0 = time.perf_counter()
-        estimate = est.run(drive)
+        estimate = est.run(drive.without_truth())  # truth is for scoring only (issue 13)
         if estimate.wall_time_s != estimate.wall_time_s:  # NaN: the estimator did not time itself
             estimate = dataclasses.replace(estimate, wall_time_s=time.perf_counter() - t0)
         result.metrics = evaluate_estimate(drive, estimate)

@@ -4,10 +4,11 @@ Each seed gives one fault-free drive of the scenario and, for every fault
 kind of :mod:`graphpos.sim.faults`, the same drive with that one fault
 injected (the simulator draws faults from their own random streams, so the
 faulted drive equals the fault-free one outside the fault). Every estimator
-runs on all of them; the worker returns the error series (the Euclidean
-position error against the truth interpolated at the output epochs, as in
-:mod:`eval.metrics`) and the health checks below, and the figures are
-computed here.
+runs on all of them, without their truth (truth is for scoring only, issue
+13: :meth:`graphpos.drive.Drive.without_truth`); the worker returns the
+error series (the Euclidean position error against the truth interpolated
+at the output epochs, as in :mod:`eval.metrics`) and the health checks
+below, and the figures are computed here.
 
 Where the faults are placed
 ---------------------------
@@ -146,7 +147,7 @@ def _cov_health(cov: np.ndarray | None) -> tuple[bool | None, float | None]:
 
 
 def run_one(source: SimSource, estimator: str) -> dict[str, Any]:
-    """Run one estimator on one drive; the error series and health figures. Never raises."""
+    """Run one estimator on one drive without its truth; the error series (against the truth) and health figures. Never raises."""
     from eval.metrics import interpolate_truth
     from graphpos.registry import make_estimator
 
@@ -154,7 +155,7 @@ def run_one(source: SimSource, estimator: str) -> dict[str, Any]:
     try:
         drive = load_drive(source)
         started = time.perf_counter()
-        est = make_estimator(estimator).run(drive)
+        est = make_estimator(estimator).run(drive.without_truth())  # truth is for scoring only (issue 13)
         out["wall_time_s"] = time.perf_counter() - started
         truth = interpolate_truth(drive.truth, est.t_s)  # epochs outside the truth's span have no error
         err = np.hypot(est.east_m[truth.mask] - truth.east_m, est.north_m[truth.mask] - truth.north_m)

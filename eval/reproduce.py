@@ -16,9 +16,14 @@ degraded-data studies and the first 180 s of Plaza.
 Real data: when the Plaza file is present, the estimators that can use its
 sensors (UWB ranges, wheel odometry, gyro; no accelerometers, no compass) run
 on it. The ranging is not calibrated on the evaluated drive's truth: Plaza1
-is the only Plaza drive available, so the range model is the drive's default
-(:func:`graphpos.ranging.default_range_model`: the radio's ranges as
-reported, with the default distance-dependent sigma) — no truth is used.
+is the only Plaza drive available, so the range model is a self-calibration
+on the drive without its truth (:func:`graphpos.graph.calibration.calibrate_range_scale`:
+the radio's common range scale and a robust sigma from graph-batch's
+solution).
+
+Truth is for scoring only (issue 13): every run hands its estimator the
+drive without its truth (:func:`eval.execution.run_job`) and scores the
+output against the full drive afterwards.
 """
 
 from __future__ import annotations
@@ -231,7 +236,7 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
             plaza_drive = first_seconds(plaza_drive, QUICK_PLAZA_S)
         # Self-calibrated on the drive itself, without its truth (the only
         # Plaza drive: no other drive to fit a calibration on).
-        plaza_model = calibrate_range_scale(plaza_drive)
+        plaza_model = calibrate_range_scale(plaza_drive.without_truth())
         plaza_drive = plaza_drive.replace(params={**plaza_drive.params, "range_model": plaza_model.to_dict()})
         for name in PLAZA_ESTIMATORS:
             runs.add(plaza_drive, name, None, keep=True, range_model=plaza_model)
@@ -277,7 +282,7 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
         if plot_key not in plotted:  # song2014 Tables 4 and 5/6 show the same runs in two windows
             plotted.add(plot_key)
             estimates = [res[(first, r.estimator, r.layout)].estimate for r in exp.all_rows()
-                         if res[(first, r.estimator, r.layout)].ok]
+                         if res[(first, r.estimator, r.layout)].ok and len(res[(first, r.estimator, r.layout)].estimate)]
             if estimates:
                 drive = load_drive(first)
                 sub = folder / safe_name(exp.key)
@@ -397,7 +402,7 @@ def _plaza_section(report: Report, res: dict, drive, folder: Path, tables: dict)
              "One drive, so no spread."
              + (" --quick scores only the first minutes." if "cut_after_s" in drive.params else ""))
     sec.table(header, rows)
-    estimates = [r.estimate for r in rs.values() if r.ok]
+    estimates = [r.estimate for r in rs.values() if r.ok and len(r.estimate)]  # not the ones that never started
     if estimates:
         sec.figure(plots.trajectories(drive, estimates, folder / "plaza" / "trajectories.png"))
         sec.figure(plots.error_vs_time(drive, estimates, folder / "plaza" / "error_vs_time.png"))

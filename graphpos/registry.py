@@ -9,6 +9,8 @@ dependency arrow stays ``estimators -> core``.
 from __future__ import annotations
 
 import importlib
+import math
+from typing import Any
 
 from graphpos.errors import ConfigError
 from graphpos.estimator import Estimator
@@ -37,8 +39,17 @@ def require_known(names: list[str]) -> dict[str, type[Estimator]]:
 def make_estimator(name: str, settings: dict[str, str] | None = None, **kwargs) -> Estimator:
     """Build an estimator by name; a clear error for an unknown one.
 
-    ``settings``: ``{key: value text}`` applied to its default config
-    (:func:`graphpos.settings.apply_settings`).
+    Parameters
+    ----------
+    name : str
+        Registry name.
+    settings : dict, optional
+        ``{key: value text}`` applied to its default config
+        (:func:`graphpos.settings.apply_settings`).
+    **kwargs
+        Passed to the estimator class: ``layout``, ``range_model``,
+        ``initial_pose`` (a :class:`graphpos.ignition.StartPose`), ``config``
+        (see :class:`graphpos.estimator.Estimator`).
     """
     cls = require_known([name])[name]
     if settings:
@@ -46,3 +57,21 @@ def make_estimator(name: str, settings: dict[str, str] | None = None, **kwargs) 
 
         kwargs["config"] = apply_settings(cls.default_config(), settings, name)
     return cls(**kwargs)
+
+
+def start_pose_record(pose: Any) -> dict[str, float] | None:
+    """A user's start pose as run.json and results.json record it.
+
+    Parameters
+    ----------
+    pose : graphpos.ignition.StartPose or None
+
+    Returns
+    -------
+    dict or None
+        :meth:`StartPose.to_dict` (metres, radians) plus ``yaw_deg`` and
+        ``yaw_sigma_deg``; None when no pose was given.
+    """
+    if pose is None:
+        return None
+    return {**pose.to_dict(), "yaw_deg": math.degrees(pose.yaw_rad), "yaw_sigma_deg": math.degrees(pose.yaw_sigma_rad)}

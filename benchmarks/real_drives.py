@@ -1,0 +1,151 @@
+"""Accuracy on recorded drives with the truth hidden from the estimators (issue 13).
+
+Each drive is handed to the estimators as ``Drive.without_truth()`` with
+default settings (the same for every drive); the output is scored against
+the drive's truth afterwards. Prints RMS position error and ANEES per drive
+and estimator, and each estimator's mean over the drives of a dataset::
+
+    python benchmarks/real_drives.py                       # Plaza1 + MRCLAM6 robots 1-5
+    python benchmarks/real_drives.py -e graph-batch --plaza-only
+    python benchmarks/real_drives.py --perturb             # Plaza1 + 0.3 deg/s gyro bias, truth heading +180 deg
+    python benchmarks/real_drives.py --profile-from 1      # MRCLAM: graph-isam2 with a profile calibrated on robot 1
+
+Needs ``../shared/data`` beside the checkout (skips what is absent).
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from eval.metrics import evaluate_estimate
+from graphpos.registry import make_estimator
+
+DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DEFAULT_ESTIMATORS = ("fusion-ekf", "graph-isam2", "graph-batch")
+
+
+def plaza_drive(perturb: bool = False):
+    from graphpos.io.plaza import import_plaza
+
+    path = DATA / "plaza" / "Plaza1.mat"
+    if not path.exists():
+        return None
+    drive = import_plaza(path)
+    if perturb:
+        drive = perturbed(drive)
+    return drive
+
+
+def perturbed(drive):
+    """Plaza1 with a 0.3 deg/s gyro bias added and its truth heading turned by 180 degrees."""
+    imu = drive.imu.replace(yaw_rate_radps=drive.imu.yaw_rate_radps + math.radians(0.3))
+    truth = drive.truth.replace(yaw_rad=drive.truth.yaw_rad + math.pi)
+    return drive.replace(name=drive.name + "-perturbed", channels={**drive.channels, "imu": imu, "truth": truth})
+
+
+def mrclam_drives(robots=(1, 2, 3, 4, 5)):
+    directory = DATA / "mrclam" / "MRCLAM_Dataset6"
+    if not directory.exists():
+        return []
+    from graphpos.io.mrclam import import_mrclam
+
+    return [import_mrclam(directory, robot) for robot in robots]
+
+
+def score(drive, name: str, settings: dict | None = None, **kwargs) -> dict:
+    est = make_estimator(name, settings, **kwargs)
+    t0 = time.process_time()
+    out = est.run(drive.without_truth())
+    cpu = time.process_time() - t0
+    whole = evaluate_estimate(drive, out)["windows"]["whole"]
+    nees = whole.get("nees") or {}
+    return {"rms_m": whole["position"]["rms_m"], "anees": nees.get("anees", float("nan")), "cpu_s": cpu, "estimate": out}
+
+
+def _profile_of(drive):
+    from graphpos.profile import SensorProfile
+
+    est = make_estimator("graph-batch", None).run(drive.without_truth())
+    return SensorProfile.from_dict(est.diagnostics["profile"])
+
+
+def _profile_transfer(source_robot: int, robots: tuple[int, ...]) -> int:
+    """graph-isam2 on each robot with robot ``source_robot``'s profile and with its own."""
+    drives = mrclam_drives(robots)
+    if not drives:
+        print("MRCLAM data not found under", DATA, file=sys.stderr)
+        return 1
+    profiles = {r: _profile_of(d) for r, d in zip(robots, drives)}
+    source = profiles.get(source_robot) or _profile_of(mrclam_drives((source_robot,))[0])
+    print(f"{'drive':<28}{'own profile rms_m':>18}{'robot ' + str(source_robot) + ' profile':>18}{'ratio':>8}")
+    for r, d in zip(robots, drives):
+        own = score(d, "graph-isam2", profile=profiles[r])["rms_m"]
+        other = score(d, "graph-isam2", profile=source)["rms_m"]
+        print(f"{d.name:<28}{own:>18.3f}{other:>18.3f}{other / own:>8.3f}", flush=True)
+    return 0
+
+
+def _has_setting(name: str, key: str) -> bool:
+    from graphpos.registry import require_known
+    from graphpos.settings import _has_setting as has
+
+    return has(require_known([name])[name].default_config(), key)
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("-e", "--estimator", action="append", help="estimator (repeatable; default: %s)" % ", ".join(DEFAULT_ESTIMATORS))
+    p.add_argument("--plaza-only", action="store_true")
+    p.add_argument("--mrclam-only", action="store_true")
+    p.add_argument("--robots", default="1,2,3,4,5")
+    p.add_argument("--perturb", action="store_true", help="also Plaza1 with a 0.3 deg/s gyro bias and a reversed truth heading")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="estimator setting (for every estimator that has KEY)")
+    p.add_argument("--profile-from", type=int, metavar="N",
+                   help="MRCLAM: graph-isam2 on every robot with the profile graph-batch calibrates on robot N, against its own drive's")
+    args = p.parse_args(argv)
+    if args.profile_from is not None:
+        return _profile_transfer(args.profile_from, tuple(int(r) for r in args.robots.split(",")))
+    names = args.estimator or list(DEFAULT_ESTIMATORS)
+    settings = dict(s.split("=", 1) for s in args.set)
+    groups: dict[str, list] = {}
+    if not args.mrclam_only:
+        d = plaza_drive()
+        if d is not None:
+            groups["plaza"] = [d]
+        if args.perturb and d is not None:
+            groups["plaza-perturbed"] = [perturbed(d)]
+    if not args.plaza_only:
+        robots = tuple(int(r) for r in args.robots.split(","))
+        drives = mrclam_drives(robots)
+        if drives:
+            groups["mrclam6"] = drives
+    if not groups:
+        print("no recorded drives found under", DATA, file=sys.stderr)
+        return 1
+    print(f"{'drive':<28}{'estimator':<16}{'rms_m':>8}{'anees':>9}{'cpu_s':>8}")
+    for group, drives in groups.items():
+        means: dict[str, list] = {n: [] for n in names}
+        for drive in drives:
+            for name in names:
+                cls_settings = {k: v for k, v in settings.items() if _has_setting(name, k)}
+                try:
+                    r = score(drive, name, cls_settings or None)
+                except Exception as exc:  # noqa: BLE001 - a benchmark reports and goes on
+                    print(f"{drive.name:<28}{name:<16}  failed: {str(exc)[:120]}")
+                    means[name].append(float("nan"))
+                    continue
+                means[name].append(r["rms_m"])
+                print(f"{drive.name:<28}{name:<16}{r['rms_m']:>8.3f}{r['anees']:>9.2f}{r['cpu_s']:>8.1f}", flush=True)
+        for name in names:
+            print(f"{'mean ' + group:<28}{name:<16}{np.mean(means[name]):>8.3f}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
