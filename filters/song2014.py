@@ -203,6 +203,8 @@ class Song2014Fusion(FilterEstimator):
         return OutputRow(t_s, float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), P[:2, :2].copy())
 
     def finish(self) -> Estimate:
+        if not self._started:
+            return super().finish()  # no state, no logs: an empty estimate saying not_started
         cfg = self.config
         d = self.diagnostics
         d["fading_factor_mean"] = float(np.mean(self._fading_log)) if self._fading_log else 1.0

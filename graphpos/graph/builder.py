@@ -173,7 +173,7 @@ class GraphBuilder:
         self.wheel_scale: float | None = None  # None: wheel factors as built online
         self.wheel_drift_density: float | None = None  # with wheel_scale None: rebuild the drift term at this density
         self.landmark_positions: dict[int, np.ndarray] = {}
-        self.diagnostics = {"late_attached": 0, "late_dropped": 0, "ranges": 0, "anchor_keyframe": None, "start": None}
+        self.diagnostics = {"late_attached": 0, "late_dropped": 0, "before_odometry": 0, "ranges": 0, "anchor_keyframe": None, "start": None}
         if initial_pose is not None:
             self.diagnostics["start"] = {"source": "user", **initial_pose.to_dict()}
 
@@ -186,8 +186,16 @@ class GraphBuilder:
 
     # -- input ----------------------------------------------------------------
     def add(self, m: Measurement) -> list[Increment]:
-        """Take one measurement; return the keyframes it closes."""
+        """Take one measurement; return the keyframes it closes.
+
+        The keyframe grid starts at the first odometry (wheel or IMU)
+        sample: an absolute reading before it cannot be placed relative to
+        the motion (counted as ``before_odometry`` and dropped).
+        """
         if self.t0 is None:
+            if m.channel not in ("imu", "wheel"):
+                self.diagnostics["before_odometry"] += 1
+                return []
             self.t0 = m.t_s
             self.odometry.start(m.t_s)
             self._imu_t = m.t_s
@@ -525,10 +533,16 @@ class GraphBuilder:
         first = merged.released[0]
         extra = self.model.first_keyframe_keys(first)  # e.g. the bias node in effect, created before the window
         allowed.update(extra)
-        for inc in window:
+        marks = set(self._backlog_landmarks)
+        in_window = {id(inc) for inc in window}
+        for inc in self._backlog:
+            # older increments give only their landmark priors: every held
+            # landmark is inserted, and one first seen before the window must
+            # keep its prior (else the ranges alone hold it: indeterminate)
+            keep = allowed if id(inc) in in_window else marks
             for i in range(inc.factors.size()):
                 factor = inc.factors.at(i)
-                if all(key in allowed for key in factor.keys()):
+                if all(key in keep for key in factor.keys()):
                     merged.factors.add(factor)
             merged.timestamps.update({key: t for key, t in inc.timestamps.items() if key in allowed})
         for k in merged.released:

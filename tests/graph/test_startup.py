@@ -38,18 +38,6 @@ SONG2016 = ("fusion-ekf", "fukf", "two-level-ekf", "dr")
 GRAPH_KEYS = tuple(f"{name}/{p}" for name in sorted(GRAPHS) for p in ("planar", "inertial"))
 
 # -- known failures (not fixed here: graphpos/graph/ and filters/ are being changed elsewhere) ----------------
-BUG_SONG2014_NEVER_STARTED = (
-    "song2014 filter that never starts: Song2014Fusion.finish reads self._fading_log / _mu_log, "
-    "which only _init_filter creates -> AttributeError instead of an empty estimate with not_started "
-    "(fix: create them in start(), or guard finish() with self._started)"
-)
-BUG_LANDMARK_PRIOR_DROPPED = (
-    "graph-fixed-lag: GraphBuilder._release passes only the backlog increments within release_window_s but "
-    "inserts every backlog landmark; a landmark key created before that window (a tag or beacon still in view) "
-    "loses its prior factor, which sits in an older increment -> held by ranges alone -> IndeterminantLinearSystem "
-    "near l<k> at the release (fix: carry the single-key landmark priors of every backlog increment into the "
-    "released one; checked by monkeypatching: the five cases here then pass)"
-)
 BUG_TWO_LEVEL_ONE_TAG = (
     "two-level-ekf with one tag per scan: level 1 (the RFID-EKF's position random walk) cannot follow the "
     "vehicle from single ranges, gates most of them and lags; level 2 takes its lagging positions as fixes "
@@ -62,15 +50,6 @@ BUG_LMS_MIRROR = (
     "filter takes the fix without a gate -> metres off, confidently (fix, checked by monkeypatching: seed the "
     "positioner with the fusion filter's position when its own track is lost: 8.7 m -> 0.7 m max here; or gate the fix)"
 )
-BUG_ODOMETRY_LATE = (
-    "graph estimators when ranges/compass come before the first wheel/IMU sample: the builder starts the keyframe "
-    "grid at the first measurement and closes keyframes without odometry as standstill (zero wheel delta with its "
-    "normal sigma; inertial: an empty IMU preintegration) -> inertial: IndeterminantLinearSystem near v0; "
-    "batch planar: the pre-odometry track metres off with centimetre sigmas (fix: start the keyframe grid at the "
-    "first wheel/IMU sample, as ignition now starts dead reckoning there)"
-)
-
-
 def xfail(key: str, reason: str):
     return pytest.param(key, marks=pytest.mark.xfail(strict=True, reason=reason))
 
@@ -254,10 +233,9 @@ def test_odometry_only_for_15_s_then_ranges_without_compass(key):
 
 
 # -- (b) a single range; a single beacon ------------------------------------------------------------------------
-_NEVER_STARTS = {k: BUG_SONG2014_NEVER_STARTED for k in SONG2014}
 
 
-@pytest.mark.parametrize("key", keys_for(single_range(True), _NEVER_STARTS))
+@pytest.mark.parametrize("key", keys_for(single_range(True)))
 def test_a_single_range_never_starts(key):
     """One range in 10 s cannot fix three unknowns: no start, an empty estimate that says so."""
     drive = single_range(True)
@@ -265,14 +243,13 @@ def test_a_single_range_never_starts(key):
     check_not_started(key, drive, run(key, drive))
 
 
-@pytest.mark.parametrize("key", keys_for(single_range(False), _NEVER_STARTS))
+@pytest.mark.parametrize("key", keys_for(single_range(False)))
 def test_a_single_range_without_compass_never_starts(key):
     drive = single_range(False)
     check_not_started(key, drive, run(key, drive))
 
 
-@pytest.mark.parametrize("key", keys_for(one_beacon(True), {"graph-fixed-lag/inertial": BUG_LANDMARK_PRIOR_DROPPED,
-                                                              "two-level-ekf": BUG_TWO_LEVEL_ONE_TAG}))
+@pytest.mark.parametrize("key", keys_for(one_beacon(True), {"two-level-ekf": BUG_TWO_LEVEL_ONE_TAG}))
 def test_one_beacon_with_compass_starts_once_the_turn_resolves_the_mirror(key):
     """Ranges to one beacon along a straight line fit the track and its mirror image about the line through
     the beacon equally well; the turn (with the compass) tells them apart, and the start comes then."""
@@ -287,7 +264,7 @@ def test_one_beacon_with_compass_starts_once_the_turn_resolves_the_mirror(key):
     assert 3.0 <= start_time(est) <= 10.0
 
 
-@pytest.mark.parametrize("key", keys_for(one_beacon(False), _NEVER_STARTS))
+@pytest.mark.parametrize("key", keys_for(one_beacon(False)))
 def test_one_beacon_without_compass_never_starts(key):
     """Without a heading reference, turning the whole track about the one beacon changes no range: never determinate."""
     drive = one_beacon(False)
@@ -305,7 +282,7 @@ def test_stationary_with_compass_starts_and_is_consistent(key):
     assert q.mean() < 6.0 and q.max() < 25.0, (q.mean(), q.max())
 
 
-@pytest.mark.parametrize("key", keys_for(stationary(False), _NEVER_STARTS))
+@pytest.mark.parametrize("key", keys_for(stationary(False)))
 def test_stationary_without_compass_waits_for_motion(key):
     """Heading is unobservable standing still without a compass: no start, so no wrong confident pose."""
     drive = stationary(False)
@@ -313,7 +290,7 @@ def test_stationary_without_compass_waits_for_motion(key):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("key", keys_for(stationary(False), _NEVER_STARTS))
+@pytest.mark.parametrize("key", keys_for(stationary(False)))
 def test_stationary_for_a_minute_without_compass_never_starts(key):
     """The wheel's noise (0.1 m/s) adds up to more than min_travel_m of "travel" standing still: still no start."""
     drive = stationary(False, 60.0)
@@ -326,7 +303,7 @@ def standing_then_driving() -> Drive:
     return without(synthetic_drive(16, seed=29, stop=(0.0, 6.0)), "compass")
 
 
-@pytest.mark.parametrize("key", keys_for(standing_then_driving(), {"graph-fixed-lag/inertial": BUG_LANDMARK_PRIOR_DROPPED}))
+@pytest.mark.parametrize("key", keys_for(standing_then_driving()))
 def test_standing_then_driving_without_compass_starts_once_moving(key):
     drive = standing_then_driving()
     est = run(key, drive)
@@ -356,7 +333,7 @@ def sparse_one_wall() -> Drive:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("key", keys_for(sparse_one_wall(), _NEVER_STARTS))
+@pytest.mark.parametrize("key", keys_for(sparse_one_wall()))
 def test_one_tag_every_40_m_on_one_wall_with_a_turn(key):
     """Either no start (an empty estimate that says so) or, after the turn has resolved the mirror, a sane one."""
     drive = sparse_one_wall()
@@ -403,7 +380,7 @@ def test_start_pose_stored_in_the_drive_is_used():
 
 
 # -- (f) the wall mirror ----------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("key", keys_for(one_wall(True), _NEVER_STARTS))
+@pytest.mark.parametrize("key", keys_for(one_wall(True)))
 def test_one_wall_straight_road_waits(key):
     """Tags on one wall along a straight road: the vehicle and its mirror image across the wall fit equally
     well (the compass cannot tell them apart either); nothing to drop them by: ignition waits, no mirror start."""
@@ -412,15 +389,14 @@ def test_one_wall_straight_road_waits(key):
 
 
 @pytest.mark.parametrize("key", [k if k in ("graph-isam2/planar", "graph-batch/inertial", "fusion-ekf", "dr") else pytest.param(k, marks=pytest.mark.slow)
-                                 for k in keys_for(one_wall(False), _NEVER_STARTS)])
+                                 for k in keys_for(one_wall(False))])
 def test_one_wall_straight_road_without_compass_waits(key):
     """(Eight trial headings per attempt without a compass make waiting dear: four estimators by default, all with -m slow.)"""
     drive = one_wall(False)
     check_not_started(key, drive, run(key, drive))
 
 
-@pytest.mark.parametrize("key", keys_for(one_wall(turn=True), {"graph-fixed-lag/planar": BUG_LANDMARK_PRIOR_DROPPED,
-                                                               "graph-fixed-lag/inertial": BUG_LANDMARK_PRIOR_DROPPED}))
+@pytest.mark.parametrize("key", keys_for(one_wall(turn=True)))
 def test_one_wall_then_a_turn_starts_on_the_right_side(key):
     drive = one_wall(turn=True)
     est = run(key, drive)
@@ -461,9 +437,7 @@ def test_one_wall_heard_both_mapped_drops_the_mirror(key):
 
 
 # -- whatever arrives first ------------------------------------------------------------------------------------------
-@pytest.mark.parametrize("key", keys_for(ranges_before_odometry(), {"graph-batch/planar": BUG_ODOMETRY_LATE, "graph-batch/inertial": BUG_ODOMETRY_LATE,
-                                                                    "graph-isam2/inertial": BUG_ODOMETRY_LATE,
-                                                                    "graph-fixed-lag/inertial": BUG_ODOMETRY_LATE}))
+@pytest.mark.parametrize("key", keys_for(ranges_before_odometry()))
 def test_ranges_before_odometry(key):
     """The vehicle moves for 3 s before the first wheel/IMU sample: ignition uses no reading it cannot place."""
     drive = ranges_before_odometry()
