@@ -445,9 +445,10 @@ class GraphBuilder:
         noise = robust(record.sigma_m / scale, self.config)
         return self.model.range_factor(record.keyframe, record.landmark_key, record.reading_m / scale, noise)
 
-    def graph(self, scale: float | None = None) -> gtsam.NonlinearFactorGraph:
+    def graph(self, scale: float | None = None, extra_turn_density2: float = 0.0) -> gtsam.NonlinearFactorGraph:
         """Every factor so far (``keep_history``): ranges built with ``scale``, wheel factors with
-        :attr:`wheel_scale` (else with the drift term at :attr:`wheel_drift_density`, else as built online)."""
+        :attr:`wheel_scale` (else with the drift term at :attr:`wheel_drift_density`, else as built online),
+        their heading loosened by ``extra_turn_density2`` (:meth:`OdometryDelta.with_turn_density`)."""
         scale = self.range_scale if scale is None else scale
         g = gtsam.NonlinearFactorGraph(self.fixed_factors)
         for r in self.range_records:
@@ -455,6 +456,8 @@ class GraphBuilder:
         for k, delta in self.odometry_records:
             if self.wheel_scale is None and self.wheel_drift_density is not None:
                 delta = delta.with_drift_density(self.wheel_drift_density)
+            if extra_turn_density2 > 0:
+                delta = delta.with_turn_density(extra_turn_density2)
             g.add(self.model.wheel_factor(k, delta, self.wheel_scale))
         return g
 

@@ -158,8 +158,9 @@ class GraphIsam2(_GraphEstimator):
 
     Without a sensor profile it learns one online (``config.learn_online``):
     :data:`LEARN_FIRST_S` after the start, and then each time the time since
-    the start has doubled, the sensor profile is fitted to the smoothed
-    trajectory so far (:func:`~graphpos.graph.calibration.fit_profile`,
+    the start has doubled, the sensor profile is fitted to the trajectory
+    so far solved with its heading loosened as in graph-batch's first solve
+    (:func:`~graphpos.graph.calibration.fit_profile`,
     and the range scale by :func:`~graphpos.graph.calibration.estimate_range_scale`
     when graph-batch would estimate it) and applied to the readings still
     to come (:meth:`GraphBuilder.recalibrate`). Only data received so far is
@@ -196,7 +197,11 @@ class GraphIsam2(_GraphEstimator):
         reported = getattr(b.range_model, "input_column", None) == "range_m"
         if self.range_model is None and reported and self.config.range_scale != "off" and b.range_records:
             scale, _ = estimate_range_scale(b, values, self.config, what)
-        found = fit_profile(b, values, self.config, self._drive_name, since_keyframe=self._learnt_k)
+        # fitted to a solve whose heading may leave the turn rate (as graph-batch's first solve)
+        c = self.config
+        loose2 = (c.turn_scale_density_per_sqrt_s * c.calibration_odometry_factor) ** 2 - c.turn_scale_density_per_sqrt_s**2
+        values = optimise(b.graph(scale, extra_turn_density2=loose2), values, c, what, relative_tol=1e-3)
+        found = fit_profile(b, values, c, self._drive_name, since_keyframe=self._learnt_k)
         if found is None:
             return
         corrections = b.corrections.combined(dataclasses.replace(found, range_scale=1.0, range_offset_m=0.0))

@@ -42,6 +42,12 @@ class OdometryDelta:
     white_cov: np.ndarray
     drift_cov_per_density2: np.ndarray
 
+    def with_turn_density(self, extra_density2: float) -> "OdometryDelta":
+        """The same delta with ``extra_density2 * dtheta^2 / duration`` more heading variance (a looser turn-rate scale)."""
+        extra = np.zeros((3, 3))
+        extra[2, 2] = extra_density2 * self.dtheta_rad**2 / max(self.duration_s, 1e-9)
+        return dataclasses.replace(self, cov=self.cov + extra, white_cov=self.white_cov + extra)
+
     def with_drift_density(self, density_per_sqrt_s: float) -> "OdometryDelta":
         """The same delta with the wheel-scale drift term of another density."""
         return dataclasses.replace(self, cov=self.white_cov + density_per_sqrt_s**2 * self.drift_cov_per_density2)

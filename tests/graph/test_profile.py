@@ -1,0 +1,83 @@
+"""Sensor profiles: corrections applied to readings, self-calibration without truth, calibrate / --profile."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from graph_drives import synthetic_drive
+
+from graphpos.cli import main
+from graphpos.errors import ConfigError
+from graphpos.graph import ESTIMATORS
+from graphpos.graph.config import GraphConfig
+from graphpos.io import write_drive
+from graphpos.profile import SensorProfile
+
+GYRO_BIAS_RADPS = math.radians(0.3)
+RANGE_SCALE = 1.07
+
+
+@pytest.fixture(scope="module")
+def biased_drive():
+    """A drive whose gyro reads 0.3 deg/s high and whose ranges read 7 % long (a Plaza-like radio)."""
+    d = synthetic_drive(60, seed=11, turn_radps=0.08, range_scale=RANGE_SCALE)
+    imu = d.imu.replace(yaw_rate_radps=d.imu.yaw_rate_radps + GYRO_BIAS_RADPS)
+    return d.replace(channels={k: v for k, v in {**d.channels, "imu": imu}.items() if k != "compass"})
+
+
+def test_corrections_follow_the_stated_formulas(biased_drive):
+    p = SensorProfile(gyro_bias_radps=0.01, yaw_rate_scale=1.1, wheel_scale=0.9, range_scale=1.05, range_offset_m=0.2)
+    c = p.correct(biased_drive)
+    np.testing.assert_allclose(c.imu.yaw_rate_radps, (biased_drive.imu.yaw_rate_radps - 0.01) / 1.1)
+    np.testing.assert_allclose(c.wheel.speed_mps, biased_drive.wheel.speed_mps / 0.9)
+    np.testing.assert_allclose(c.rfid.range_m, np.maximum((biased_drive.rfid.range_m - 0.2) / 1.05, 0.0))
+    # applying one profile then a second equals applying their combination
+    q = SensorProfile(gyro_bias_radps=-0.002, yaw_rate_scale=0.98, wheel_scale=1.02)
+    np.testing.assert_allclose(q.correct(c).imu.yaw_rate_radps, p.combined(q).correct(biased_drive).imu.yaw_rate_radps)
+
+
+def test_profile_file_round_trip_and_refusals(tmp_path):
+    p = SensorProfile(gyro_bias_radps=0.001, range_scale=1.07, range_sigma0_m=0.5, source={"drive": "x"})
+    p.save(tmp_path / "p.json")
+    assert SensorProfile.load(tmp_path / "p.json") == p
+    with pytest.raises(ConfigError, match="wheel_scale"):
+        SensorProfile(wheel_scale=5.0)
+    (tmp_path / "bad.json").write_text(json.dumps({"kind": "graphpos-sensor-profile", "colour": 1}))
+    with pytest.raises(ConfigError, match="unknown field"):
+        SensorProfile.load(tmp_path / "bad.json")
+
+
+def test_graph_batch_finds_gyro_bias_and_range_scale_without_truth(biased_drive):
+    est = ESTIMATORS["graph-batch"]().run(biased_drive.without_truth())
+    found = SensorProfile.from_dict(est.diagnostics["profile"])
+    assert found.range_scale == pytest.approx(RANGE_SCALE, abs=0.01)
+    assert math.degrees(found.gyro_bias_radps) == pytest.approx(0.3, abs=0.1)
+    plain = ESTIMATORS["graph-batch"](GraphConfig(self_calibrate=False, range_scale="off"))
+    plain_est = plain.run(biased_drive.without_truth())
+
+    def rms(e):
+        tr = biased_drive.truth
+        d = np.hypot(e.east_m - np.interp(e.t_s, tr.t_s, tr.east_m), e.north_m - np.interp(e.t_s, tr.t_s, tr.north_m))
+        return float(np.sqrt(np.mean(d**2)))
+
+    assert rms(est) < rms(plain_est)
+
+
+def test_calibrate_then_run_with_the_profile(biased_drive, tmp_path, capsys):
+    drive_file = tmp_path / "d.mcap"
+    write_drive(drive_file, biased_drive)
+    assert main(["calibrate", str(drive_file), "-o", str(tmp_path / "p.json")]) == 0
+    found = SensorProfile.load(tmp_path / "p.json")
+    assert found.range_scale == pytest.approx(RANGE_SCALE, abs=0.01)
+    out = tmp_path / "run"
+    assert main(["run", str(drive_file), "-e", "graph-fixed-lag", "-e", "fusion-ekf", "--profile", str(tmp_path / "p.json"),
+                 "--out-dir", str(out)]) == 0
+    assert json.loads((out / "run.json").read_text())["profile"]["range_scale"] == found.range_scale
+    capsys.readouterr()
+    assert main(["run", str(drive_file), "-e", "dr", "--profile", str(tmp_path / "missing.json"), "--out-dir", str(tmp_path / "r2")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "missing.json" in err[0]
+    assert not (tmp_path / "r2").exists()
