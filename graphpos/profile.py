@@ -22,7 +22,9 @@ Its noise levels go to every estimator config that has the matching field
 (:meth:`SensorProfile.tuned`): the heading noise the yaw-rate sensor leaves
 after correction (a density; the graph's ``heading_noise_radps_per_sqrt_s``,
 song2016's ``yaw_model_psd_rad2ps``) and the
-part proportional to the turn (``turn_scale_density_per_sqrt_s``).
+part proportional to the turn (``turn_scale_density_per_sqrt_s``), and the
+factor on range sigmas for errors that repeat between readings
+(``range_sigma_scale``).
 """
 
 from __future__ import annotations
@@ -64,6 +66,9 @@ class SensorProfile:
     range_sigma0_m, range_sigma_slope : float or None
         1-sigma of a corrected range at zero distance and its growth per
         metre; None: the drive's default range model's.
+    range_sigma_scale : float or None
+        Factor on every range sigma for errors that repeat between readings
+        of one landmark (the estimators' ``range_sigma_scale``); None: defaults.
     heading_noise_radps_per_sqrt_s : float or None
         Heading random walk the corrected yaw rate leaves (rad/sqrt(s));
         None: the estimators' defaults.
@@ -81,6 +86,7 @@ class SensorProfile:
     range_offset_m: float = 0.0
     range_sigma0_m: float | None = None
     range_sigma_slope: float | None = None
+    range_sigma_scale: float | None = None
     heading_noise_radps_per_sqrt_s: float | None = None
     turn_scale_density_per_sqrt_s: float | None = None
     source: dict[str, Any] = field(default_factory=dict)
@@ -90,7 +96,7 @@ class SensorProfile:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
                 raise ConfigError(f"sensor profile: {name} = {value!r} is outside the plausible range [{lo:g}, {hi:g}]")
-        for name in ("range_sigma0_m", "range_sigma_slope", "heading_noise_radps_per_sqrt_s", "turn_scale_density_per_sqrt_s"):
+        for name in ("range_sigma0_m", "range_sigma_slope", "range_sigma_scale", "heading_noise_radps_per_sqrt_s", "turn_scale_density_per_sqrt_s"):
             value = getattr(self, name)
             if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ConfigError(f"sensor profile: {name} must be a non-negative number or null, got {value!r}")
@@ -119,6 +125,8 @@ class SensorProfile:
             values["yaw_model_psd_rad2ps"] = h * h
         if turn is not None:
             values["turn_scale_density_per_sqrt_s"] = turn
+        if self.range_sigma_scale is not None:
+            values["range_sigma_scale"] = max(self.range_sigma_scale, 1.0)
         names = {f.name for f in dataclasses.fields(config)}
         values = {k: max(v, 1e-9) for k, v in values.items() if k in names}
         return dataclasses.replace(config, **values) if values else config

@@ -148,6 +148,28 @@ def _noise_fit(residual: np.ndarray, T: np.ndarray, motion: np.ndarray) -> tuple
     return float(coef[0] / 0.73), float(coef[1] / 0.73)
 
 
+def _lag1_correlation(residual: np.ndarray, keys: np.ndarray) -> float:
+    """Correlation of consecutive range residuals of the same sighting (landmark key), clipped to [0, 0.9].
+
+    A tag's or beacon's errors repeat from one reading to the next (multipath,
+    shadowing at a place): ``n`` readings with lag-1 correlation ``rho`` carry
+    the information of about ``n (1 - rho) / (1 + rho)`` independent ones
+    (first-order autoregressive errors), so their sigma is inflated by
+    ``sqrt((1 + rho) / (1 - rho))``. Residuals beyond 5 robust sigmas
+    (outliers) are left out.
+    """
+    order = np.argsort(keys, kind="stable")  # records are in time order: stable keeps each key's readings in order
+    r, k = residual[order], keys[order]
+    same = k[1:] == k[:-1]
+    a, b = r[:-1][same], r[1:][same]
+    scale = 1.4826 * float(np.median(np.abs(residual))) + 1e-12
+    ok = (np.abs(a) < 5 * scale) & (np.abs(b) < 5 * scale)
+    if ok.sum() < 20:
+        return 0.0
+    rho = float(np.corrcoef(a[ok], b[ok])[0, 1])
+    return float(np.clip(rho if np.isfinite(rho) else 0.0, 0.0, 0.9))
+
+
 def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: str, since_keyframe: int = 0):
     """A sensor profile from a solved whole-drive graph (no truth): corrections and noise levels.
 
@@ -168,8 +190,9 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
       0.355 m with the default density);
     - ranges (reported ranges only): the range scale found by the profile
       likelihood search (:func:`estimate_range_scale`) or 1, an offset (the
-      median residual) and a sigma (1.4826 x MAD) of the readings about the
-      solved distances.
+      median residual), a sigma (1.4826 x MAD) of the readings about the
+      solved distances, and the factor on it for errors that repeat from one
+      reading of a landmark to the next (:func:`_lag1_correlation`).
 
     The solved trajectory's own jitter adds to the turn residuals, so the noise
     levels err on the large side (a conservative covariance). The odometry
@@ -211,6 +234,9 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
         res = reading - builder.range_scale * dist
         offset = float(np.median(res))
         sigma = 1.4826 * float(np.median(np.abs(res - offset))) / builder.range_scale
-        fields.update(range_scale=float(builder.range_scale), range_offset_m=offset, range_sigma0_m=max(sigma, 0.02), range_sigma_slope=0.0)
+        keys = np.array([r.landmark_key for r in builder.range_records])
+        rho = _lag1_correlation(res - offset, keys)
+        fields.update(range_scale=float(builder.range_scale), range_offset_m=offset, range_sigma0_m=max(sigma, 0.02), range_sigma_slope=0.0,
+                      range_sigma_scale=float(math.sqrt((1 + rho) / (1 - rho))))
     return SensorProfile(**fields, source={"drive": drive_name, "estimator": "graph-batch", "windows": int(T.size),
                                            "turned_rad": turned})
