@@ -473,8 +473,8 @@ class DeadReckoning(_VehicleEkf):
     optional_channels = ("compass",)
 
     #: Start heading 1-sigma ignition must reach: without a compass nothing
-    #: corrects the heading afterwards, and 5 degrees (the other filters'
-    #: limit) is 9 m of cross-track error per 100 m driven.
+    #: corrects the heading afterwards, and 10 degrees (the other filters'
+    #: limit) is 17 m of cross-track error per 100 m driven.
     START_YAW_SIGMA_RAD = math.radians(1.0)
 
     def _ignition_config(self):

@@ -175,7 +175,7 @@ class IgnitionConfig:
     window_s: float = 60.0
     min_travel_m: float = 1.0
     max_position_sigma_m: float = 1.5
-    max_yaw_sigma_rad: float = math.radians(5.0)
+    max_yaw_sigma_rad: float = math.radians(10.0)
     dr_error_per_m: float = 0.05
     dr_turn_error: float = 0.1
     compass_sigma_rad: float = math.radians(5.0)
