@@ -207,9 +207,34 @@ class GraphIsam2(_GraphEstimator):
         corrections = b.corrections.combined(dataclasses.replace(found, range_scale=1.0, range_offset_m=0.0))
         range_model = found.range_model() if reported and self.range_model is None else None
         b.recalibrate(corrections, scale, range_model)
+        if range_model is not None:
+            self._rebuild_ranges(values, what)
         self._learnt_k = k
         self._learning.append({"keyframe": k, "range_scale": scale, "gyro_bias_radps": corrections.gyro_bias_radps,
                                "yaw_rate_scale": corrections.yaw_rate_scale, "wheel_scale": corrections.wheel_scale})
+
+    def _rebuild_ranges(self, values: gtsam.Values, what: str) -> None:
+        """Swap every range factor in iSAM2 for one with the learnt scale and sigma.
+
+        Left as they were built, the ranges received before a learning keep
+        the old scale and pull the causal estimate for as long as they are
+        near. The range records hold each reading, so iSAM2 removes the old
+        factors and takes the rebuilt ones in one update.
+        """
+        b = self.builder
+        b.reweight_ranges(values)
+        factors = self.smoother.isam.getFactorsUnsafe()
+        kinds = (gtsam.RangeFactor2D, gtsam.RangeFactor3D)
+        old = [i for i in range(factors.size()) if factors.exists(i) and isinstance(factors.at(i), kinds)]
+        fresh = gtsam.NonlinearFactorGraph()
+        for r in b.range_records:
+            fresh.add(b.range_factor(r, b.range_scale))
+        if len(old) != fresh.size():
+            return  # not one record per factor (should not happen): leave the graph as it is
+        try:
+            self.smoother.isam.update(fresh, gtsam.Values(), old)
+        except RuntimeError as exc:
+            raise gtsam_error(exc, f"{what}: rebuilding the ranges") from None
 
     def _estimate(self, rows: list[OutputRow]) -> Estimate:
         est = super()._estimate(rows)
