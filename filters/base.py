@@ -41,7 +41,7 @@ import numpy as np
 from graphpos.drive import Drive, Measurement
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
-from graphpos.ignition import Ignition, IgnitionConfig, StartState
+from graphpos.ignition import NOT_STARTED, Ignition, IgnitionConfig, StartState
 
 
 #: Columns handed to :meth:`FilterEstimator._on_fix` for each position-fix channel.
@@ -50,6 +50,10 @@ _FIX_CHANNELS = {
     "rsu": ("rsu_id", "east_m", "north_m", "range_m", "sigma_m"),
 }
 
+
+#: Columns handed to :meth:`FilterEstimator._pre_start` for each non-RFID channel.
+_PRE_START_COLUMNS = {"imu": ("accel_x_mps2", "accel_y_mps2", "yaw_rate_radps"), "wheel": ("speed_mps",), "compass": ("yaw_rad",),
+                      **_FIX_CHANNELS}
 
 #: Channels every filter that needs a start reads until it has started, to
 #: find its start (ranges, fixes, heading), whether or not its model uses them.
@@ -186,10 +190,8 @@ class FilterEstimator(Estimator):
                 self._pending_key = (m.t_s, m.arrival_s)
             self._pending.append(m.values)
         elif not self._started:
-            v = m.values
-            columns = {"imu": ("accel_x_mps2", "accel_y_mps2", "yaw_rate_radps"), "wheel": ("speed_mps",), "compass": ("yaw_rad",), **_FIX_CHANNELS}
-            if m.channel in columns:
-                self._pre_start(m.channel, m.t_s, tuple(v[c] for c in columns[m.channel]))
+            if m.channel in _PRE_START_COLUMNS:
+                self._pre_start(m.channel, m.t_s, tuple(m.values[c] for c in _PRE_START_COLUMNS[m.channel]))
         else:
             v = m.values
             t = self._advance(m.t_s)
@@ -207,7 +209,7 @@ class FilterEstimator(Estimator):
         if self._pending:
             self._flush_scan()
         if not self._started:
-            self.diagnostics["not_started"] = "no start state: give --initial-pose, or a drive with fixes or ranges while moving"
+            self.diagnostics["not_started"] = NOT_STARTED
             self.diagnostics["ignition_attempts"] = self._ignition.attempts
         return Estimate.from_rows(
             self.name,

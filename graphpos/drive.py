@@ -497,6 +497,11 @@ class Drive:
         return channel in self.channels and len(self.channels[channel]) > 0
 
     @property
+    def reports_ranges(self) -> bool:
+        """True when the ``rfid`` channel carries ranges (``range_m``), as a ranging radio reports them."""
+        return self.has("rfid") and bool(np.isfinite(self.channels["rfid"].range_m).any())
+
+    @property
     def has_accelerometers(self) -> bool:
         """True when the ``imu`` channel carries accelerometer readings."""
         return self.has("imu") and bool(np.isfinite(self.channels["imu"].accel_x_mps2).all())

@@ -35,12 +35,6 @@ from graphpos.ignition import StartPose
 from graphpos.profile import SensorProfile
 
 
-def _reports_ranges(drive: Drive) -> bool:
-    import numpy as np
-
-    return drive.has("rfid") and bool(np.isfinite(drive.rfid.range_m).any())
-
-
 def require_positive_numbers(config: Any, skip: tuple[str, ...] = ()) -> None:
     """Raise ConfigError unless every float field of ``config`` (but ``skip``) is finite and positive.
 
@@ -122,7 +116,7 @@ class Estimator(ABC):
         """The given range model, else the profile's, else the drive's default."""
         if self.range_model is not None:
             return self.range_model
-        if self.profile is not None and self.profile.range_model() is not None and _reports_ranges(drive):
+        if self.profile is not None and self.profile.range_model() is not None and drive.reports_ranges:
             return self.profile.range_model()
         from graphpos.ranging import default_range_model
 

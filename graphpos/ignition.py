@@ -188,6 +188,8 @@ class IgnitionConfig:
 
 #: Speed 1-sigma when the drive has no wheel speed, m/s.
 UNKNOWN_SPEED_SIGMA_MPS = 5.0
+#: What an estimator's diagnostics say (``not_started``) when it never started.
+NOT_STARTED = "no start state: give --initial-pose, or a drive with fixes or ranges while moving"
 #: Without dead reckoning, readings this close to the latest one are solved together, s.
 NO_DR_WINDOW_S = 1.0
 #: Number of trial headings and trial positions per heading of the multi-start solve.

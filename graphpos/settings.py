@@ -5,7 +5,7 @@ estimator's field, ``fixed_lag_s=20`` sets the field in every selected
 estimator whose config has it; a dotted key reaches into a nested config
 (``fading.forgetting_factor``). The value is converted to the field's
 declared type: numbers, ``true``/``false``, text, ``none`` for an optional
-field, comma-separated numbers for a tuple (``initial_pose=0,0,1.57``) and
+field, comma-separated numbers for a tuple (``range_scale_bounds=0.9,1.1``) and
 semicolon-separated rows for a matrix (``markov=0.95,0.05;0.05,0.95``).
 A key no selected estimator has, a value of the wrong type, or a value the
 config's own checks refuse is a :class:`~graphpos.errors.ConfigError`.

@@ -234,7 +234,7 @@ class GraphBuilder:
                 self._integrate_imu(m.t_s)
                 self._imu_held = (
                     np.array([v["accel_x_mps2"], v["accel_y_mps2"], 9.81]),
-                    np.array([0.0, 0.0, v["yaw_rate_radps"]]),
+                    np.array([0.0, 0.0, yaw_rate]),
                 )
             return
         if ch == "wheel":

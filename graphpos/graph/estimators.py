@@ -33,6 +33,7 @@ from graphpos.graph.builder import GraphBuilder, Increment
 from graphpos.graph.config import GraphConfig
 from graphpos.graph.models import KeyframeState, make_model
 from graphpos.graph.smoothers import FixedLagSmoother, Isam2Smoother, ValuesSource, gtsam_error
+from graphpos.ignition import NOT_STARTED
 
 #: Extra (relinearising) iSAM2 updates when the start-up backlog is released.
 ANCHOR_ITERATIONS = 4
@@ -92,6 +93,13 @@ class _GraphEstimator(Estimator):
         self.rows.extend(out)
         return out
 
+    def _estimates_range_scale(self) -> bool:
+        """Whether to self-calibrate the range scale: ``range_scale`` "estimate", or "auto" with
+        reported ranges and no range model given (graph-batch offline, graph-isam2 online)."""
+        mode = self.config.range_scale
+        reported = getattr(self.builder.range_model, "input_column", None) == "range_m"
+        return mode == "estimate" or (mode == "auto" and self.range_model is None and reported)
+
     def _update(self, inc: Increment) -> None:
         import time
 
@@ -121,7 +129,7 @@ class _GraphEstimator(Estimator):
     def _estimate(self, rows: list[OutputRow]) -> Estimate:
         times = np.asarray(self.update_times_s) if self.update_times_s else np.zeros(1)
         if not self.builder.anchored:
-            self.builder.diagnostics["not_started"] = "no start state: give --initial-pose, or a drive with fixes or ranges while moving"
+            self.builder.diagnostics["not_started"] = NOT_STARTED
         diagnostics = {
             **self.builder.diagnostics,
             "parameterisation": self.model.name,
@@ -195,9 +203,9 @@ class GraphIsam2(_GraphEstimator):
         values = self.smoother.estimate()
         scale = b.range_scale
         reported = getattr(b.range_model, "input_column", None) == "range_m"
-        if self.range_model is None and reported and self.config.range_scale != "off" and b.range_records:
+        if self._estimates_range_scale() and b.range_records:
             scale, _ = estimate_range_scale(b, values, self.config, what)
-        # fitted to a solve whose heading may leave the turn rate (as graph-batch's first solve)
+        # fitted to a solve whose heading may depart from the turn rate (graph-batch's first solve loosens it the same way)
         c = self.config
         loose2 = (c.turn_scale_density_per_sqrt_s * c.calibration_odometry_factor) ** 2 - c.turn_scale_density_per_sqrt_s**2
         values = optimise(b.graph(scale, extra_turn_density2=loose2), values, c, what, relative_tol=1e-3)
@@ -397,12 +405,6 @@ class GraphBatch(_GraphEstimator):
             covs = marginal_covariances(graph, values, [self.model.pose_key(k) for k in range(self.builder.last_keyframe + 1)], what)
         return self._estimate(_rows_from_values(self.model, self.builder, values, covs))
 
-
-    def _estimates_range_scale(self) -> bool:
-        """``range_scale`` "estimate", or "auto" with reported ranges and no range model given."""
-        mode = self.config.range_scale
-        reported = getattr(self.builder.range_model, "input_column", None) == "range_m"
-        return mode == "estimate" or (mode == "auto" and self.range_model is None and reported)
 
     def _fit_wheel_scale(self, values: gtsam.Values) -> None:
         """Self-calibrate the wheel scale on a drift-tolerant batch solve.

@@ -67,10 +67,6 @@ def _calibrated(environment: str, kind: str, seed: int) -> RssRangeModel:
     return model.fit_sigma(held_out.readings.ravel(), held_out.reading_distance_m)
 
 
-def _reports_ranges(drive: Drive) -> bool:
-    return drive.has("rfid") and bool(np.isfinite(drive.rfid.range_m).any())
-
-
 def default_range_model(drive: Drive) -> RangeModel:
     """The range model a drive is used with when the user gives none.
 
@@ -80,7 +76,7 @@ def default_range_model(drive: Drive) -> RangeModel:
     ``drive.params["rss_environment"]`` (default ``"tunnel"``). A drive
     without RFID readings gets the identity too.
     """
-    if not drive.has("rfid") or _reports_ranges(drive) or not np.isfinite(drive.rfid.rss).any():
+    if not drive.has("rfid") or drive.reports_ranges or not np.isfinite(drive.rfid.rss).any():
         return LinearCalibration(sigma0_m=DEFAULT_RANGE_SIGMA0_M, sigma_slope=DEFAULT_RANGE_SIGMA_SLOPE)
     return calibrated_model(str(drive.params.get("rss_environment", "tunnel")), "lssvm")
 
@@ -124,7 +120,7 @@ def fit_from_drive(drive: Drive, kind: str = "auto", **options: Any) -> RangeMod
         raise ConfigError(f"unknown range-model kind '{kind}' (known: {', '.join(FIT_KINDS)})")
     true_m = true_ranges_m(drive)
     if kind == "auto":
-        kind = "linear" if _reports_ranges(drive) else "lssvm"
+        kind = "linear" if drive.reports_ranges else "lssvm"
     model = LinearCalibration(**options) if kind == "linear" else _RSS_KINDS[kind](**options)
     reading = drive.rfid[model.input_column]
     if not np.isfinite(reading).any():

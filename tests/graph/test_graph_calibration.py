@@ -55,19 +55,22 @@ def test_wheel_scale_recovered_on_simulated_drives():
 
 @pytest.mark.slow
 def test_plaza1_accuracy_with_self_calibrated_scale(plaza_path):
-    """Plaza1: graph-batch RMS <= 0.40 m, graph-isam2 causal <= 0.55 m.
+    """Plaza1, truth hidden, default settings: graph-batch <= 0.25 m RMS with ANEES in [1, 4] (issue 13).
 
-    The range scale is estimated by the batch smoother from the drive itself
-    (truth is used only to score, and for the start pose as for the filters).
+    graph-batch calibrates the range scale (and the rest of the sensor
+    profile) from the drive itself; graph-isam2 learns it online and is held
+    to issue 6's 0.55 m (issue 13's 0.40 m is not met: 0.477 m measured).
     """
+    from eval.metrics import evaluate_estimate
     from graphpos.io.plaza import import_plaza
 
     drive = import_plaza(plaza_path)
-    batch = ESTIMATORS["graph-batch"](GraphConfig(range_scale="estimate", output_covariance=False), range_model=LinearCalibration()).run(drive)
+    batch = ESTIMATORS["graph-batch"]().run(drive.without_truth())
     assert batch.diagnostics["range_scale"] == pytest.approx(1.069, abs=0.01)
-    assert rms(position_errors(drive, batch)) <= 0.40
-    model = calibrate_range_scale(drive)
-    causal = ESTIMATORS["graph-isam2"](GraphConfig(output_covariance=False), range_model=model).run(drive)
+    whole = evaluate_estimate(drive, batch)["windows"]["whole"]
+    assert whole["position"]["rms_m"] <= 0.25
+    assert 1.0 <= whole["nees"]["anees"] <= 4.0
+    causal = ESTIMATORS["graph-isam2"](GraphConfig(output_covariance=False)).run(drive.without_truth())
     assert rms(position_errors(drive, causal)) <= 0.55
 
 
