@@ -9,6 +9,11 @@ Output folder layout::
     <drive>/all_estimates.kml  every track in one Google Earth file
     <drive>/<drive>.mcap       the drive, its truth and every estimate (Foxglove)
 
+``<drive>`` and ``<estimator>`` are the names made file-safe
+(:func:`graphpos.io.outputs.safe_name`); two drives of one name get
+``<drive>-2`` and so on. The folder is written by
+:func:`graphpos.io.outputs.output_folder`: complete or absent.
+
 Truth is for scoring only (issue 13): the workers hand every estimator the
 drive without its truth (:meth:`graphpos.drive.Drive.without_truth`) and
 score its output against the full drive afterwards
@@ -18,7 +23,6 @@ score its output against the full drive afterwards
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,7 +34,9 @@ from eval.report import Report, Section, fmt, write_json
 from graphpos.drive import Drive
 from graphpos.errors import MissingChannelError, naming_file
 from graphpos.io import read_drive, write_drive
+from graphpos.io.checks import drive_checks
 from graphpos.io.exports import export_estimate, kml_text, write_atomically
+from graphpos.io.outputs import output_folder, safe_name
 from graphpos.registry import start_pose_record
 
 
@@ -44,11 +50,6 @@ class Outcome:
     @property
     def failures(self) -> list[JobResult]:
         return failures(self.results)
-
-
-def safe_name(name: str) -> str:
-    """A file-name-safe version of a drive or estimator name."""
-    return re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("_") or "drive"
 
 
 def require_truth(drive: Drive) -> None:
@@ -127,6 +128,9 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
     sec = report.section(f"Drive {drive.name}")
     sec.text(f"Duration {drive.duration_s:.1f} s; channels {', '.join(drive.channels)}; "
              f"{len(drive.tags)} tags, {len(drive.rsus)} RSUs" + (f"; layout {layout}" if layout else "") + ".")
+    broken = [c for c in drive_checks(drive) if c["verdict"] != "ok"]
+    if broken:
+        sec.text("Drive checks (graphpos info): " + "; ".join(f"{c['level']} {c['name']}: {c['message']}" for c in broken) + ".")
     windows = [WHOLE] + sorted({w.label for w in drive.windows})
     for window in windows:
         header, rows = window_table(results, window)
@@ -150,6 +154,8 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
             write_atomically(sub / "all_estimates.kml", kml_text(estimates, drive.origin))
             sec.text(f"Exports in {sub.name}/: <estimator>.tum (evo), .kml (Google Earth), .geojson, .csv; "
                      "all_estimates.kml holds every track.")
+    else:
+        sec.text("No estimator gave a track on this drive (see the table and Failures): no plots or exports.")
     return sec
 
 
@@ -188,50 +194,55 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
         else:
             require_truth(drive)
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    jobs = [
-        Job(source, name, layout=layout, range_model=range_model, settings=settings.get(name, {}),
-            initial_pose=initial_pose, profile=profile, keep_estimate=True, tag={"drive_index": i})
-        for i, (source, _) in enumerate(drives)
-        for name in estimators
-    ]
-    results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="evaluate")
-    report = Report("graphpos evaluation")
-    report.section("Set-up").text(
-        f"Estimators: {', '.join(estimators)}. Errors are absolute (estimate minus truth interpolated at the "
-        "estimate epochs, no alignment). 2DRMS = 2 x RMS of the horizontal error. ANEES band: two-sided 95 % "
-        "chi-square band for independent epochs. RTF = wall time / drive duration."
-        + "".join(f" {name} settings: " + ", ".join(f"{k}={v}" for k, v in changed.items()) + "."
-                  for name, changed in settings.items())
-        + (f" Start pose given: east {initial_pose.east_m:g} m, north {initial_pose.north_m:g} m, yaw "
-           f"{math.degrees(initial_pose.yaw_rad):g} deg (1-sigma {initial_pose.position_sigma_m:g} m, "
-           f"{math.degrees(initial_pose.yaw_sigma_rad):g} deg)." if initial_pose is not None else "")
-        + " Estimators see each drive without its truth; the truth only scores them."
-    )
-    used: set[str] = set()
-    for i, (_, drive) in enumerate(drives):
-        mine = [r for r in results if r.job.tag["drive_index"] == i]
-        stem = safe_name(drive.name)
-        stem = stem if stem not in used else f"{stem}-{i + 1}"  # two drives of the same name
-        used.add(stem)
-        add_drive_sections(report, drive, mine, folder / stem, layout=layout)
-        if mcap:
-            # graphpos.io.write_drive writes atomically (the folder exists only if a run gave figures)
-            (folder / stem).mkdir(parents=True, exist_ok=True)
-            write_drive(folder / stem / f"{stem}.mcap", drive, estimates=[r.estimate for r in mine if r.ok])
-    add_failure_section(report, results)
-    write_json(folder / "results.json", {
-        "command": "evaluate",
-        "provenance": provenance(),
-        "estimators": estimators,
-        "settings": settings,
-        "layout": layout,
-        "initial_pose": start_pose_record(initial_pose),
-        "profile": profile.to_dict() if profile is not None else None,
-        "drives": [describe_source(s) | {"name": d.name, "params": d.params} for s, d in drives],
-        "results": [result_record(r) for r in results],
-    })
-    report.write(folder)
+    with output_folder(folder, "results.json") as out:
+        jobs = [
+            Job(source, name, layout=layout, range_model=range_model, settings=settings.get(name, {}),
+                initial_pose=initial_pose, profile=profile, keep_estimate=True, tag={"drive_index": i})
+            for i, (source, _) in enumerate(drives)
+            for name in estimators
+        ]
+        results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="evaluate")
+        report = Report("graphpos evaluation")
+        report.section("Set-up").text(
+            f"Estimators: {', '.join(estimators)}. Errors are absolute (estimate minus truth interpolated at the "
+            "estimate epochs, no alignment). 2DRMS = 2 x RMS of the horizontal error. ANEES band: two-sided 95 % "
+            "chi-square band for independent epochs. RTF = wall time / drive duration."
+            + "".join(f" {name} settings: " + ", ".join(f"{k}={v}" for k, v in changed.items()) + "."
+                      for name, changed in settings.items())
+            + (f" Start pose given: east {initial_pose.east_m:g} m, north {initial_pose.north_m:g} m, yaw "
+               f"{math.degrees(initial_pose.yaw_rad):g} deg (1-sigma {initial_pose.position_sigma_m:g} m, "
+               f"{math.degrees(initial_pose.yaw_sigma_rad):g} deg)." if initial_pose is not None else "")
+            + " Estimators see each drive without its truth; the truth only scores them."
+        )
+        used: set[str] = set()
+        for i, (_, drive) in enumerate(drives):
+            mine = [r for r in results if r.job.tag["drive_index"] == i]
+            stem = base = safe_name(drive.name)
+            copy = 1
+            while stem in used:  # two drives of the same name
+                copy += 1
+                stem = f"{base}-{copy}"
+            used.add(stem)
+            add_drive_sections(report, drive, mine, out / stem, layout=layout)
+            if mcap:
+                # graphpos.io.write_drive writes atomically (the folder exists only if a run gave figures)
+                (out / stem).mkdir(parents=True, exist_ok=True)
+                write_drive(out / stem / f"{stem}.mcap", drive, estimates=[r.estimate for r in mine if r.ok])
+        add_failure_section(report, results)
+        write_json(out / "results.json", {
+            "command": "evaluate",
+            "provenance": provenance(),
+            "estimators": estimators,
+            "settings": settings,
+            "layout": layout,
+            "initial_pose": start_pose_record(initial_pose),
+            "profile": profile.to_dict() if profile is not None else None,
+            "drives": [describe_source(s) | {"name": d.name, "params": d.params,
+                                             "checks": [c for c in drive_checks(d) if c["verdict"] != "ok"]}
+                       for s, d in drives],
+            "results": [result_record(r) for r in results],
+        })
+        report.write(out)
     return Outcome(results, folder)
 
 
@@ -246,4 +257,5 @@ def add_failure_section(report: Report, results: list[JobResult]) -> None:
 
 def file_sources(paths: list[str]) -> list[tuple[FileSource, Drive]]:
     """Read each drive file here (to check it and plot it) and name it as the workers' source."""
-    return [(FileSource(str(Path(p).resolve())), read_drive(p)) for p in paths]
+    drives = [read_drive(p) for p in paths]  # first: a bad path is the reader's one-line error
+    return [(FileSource(str(Path(p).resolve())), drive) for p, drive in zip(paths, drives)]

@@ -77,6 +77,7 @@ from eval.execution import SimSource, executor, load_drive, provenance
 from eval.report import Report, fmt, write_json
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError, GraphposError, MissingChannelError
+from graphpos.io.outputs import atomic_output, output_folder
 from graphpos.sim.faults import FAULTS
 
 RECOVERY_FACTOR = 1.5
@@ -352,8 +353,6 @@ def _figure(study: FaultStudy, folder: Path) -> Path | None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from graphpos.io.files import atomic_output
-
     episodic = [f for f, s in study.faults.items() if isinstance(s, dict) and f not in WHOLE_DRIVE]
     shown = [e for e in PLOTTED if e in study.estimators]
     if not episodic or not shown:
@@ -400,62 +399,62 @@ def _jsonable_cell(c: dict[str, Any]) -> dict[str, Any]:
 def write_study(study: FaultStudy, folder: Path) -> Path:
     """Write ``results.json``, ``report.md``/``report.html`` and ``fault_errors.png`` into ``folder``."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    faults = ["none", *[f for f, s in study.faults.items() if isinstance(s, dict)]]
-    report = Report(f"graphpos fault-study — {study.scenario}")
-    sec = report.section("Position error during each fault and recovery after it")
-    sec.text(f"{study.seeds} seed(s); every estimator with its defaults on the same drives. Cell: max/RMS error "
-             "during the fault, metres (means over seeds), and in brackets the recovery time after the fault's end, "
-             f"seconds (worst over seeds): until the error stays under {RECOVERY_FACTOR} x the estimator's fault-free "
-             f"RMS + {RECOVERY_MARGIN_M} m for {RECOVERY_HOLD_S:.0f} s. 'never': not within the drive. Whole-drive "
-             "faults have no recovery. Row 'none': the fault-free drive (whole-drive max/RMS). n/a: the estimator "
-             "needs a channel the scenario lacks.")
-    sec.table(["fault"] + study.estimators,
-              [[f] + [summary_cell(study.cells[(f, e)]) for e in study.estimators] for f in faults])
-    health = report.section("Health: output rate, covariance, exceptions")
-    rows = []
-    for f in faults:
-        for e in study.estimators:
-            ok = [c for c in study.cells[(f, e)] if "error" not in c]
-            errors = [c["error"] for c in study.cells[(f, e)] if "error" in c and not c.get("not_applicable")]
-            if not ok and not errors:
-                continue
-            bad_rate = sum(not c["rate_kept"] for c in ok)
-            bad_cov = sum(c["cov_pd"] is False for c in ok)
-            if bad_rate or bad_cov or errors:
-                rows.append([f, e, str(bad_rate), str(bad_cov), "; ".join(errors)[:160]])
-    if rows:
-        health.table(["fault", "estimator", "rate lost (runs)", "covariance not PD (runs)", "exception"], rows)
-    else:
-        health.text("Every run kept its output rate, every covariance given stayed positive definite, "
-                    "and no run raised.")
-    details = report.section("Details per fault and estimator")
-    details.text("Means over seeds (recovery: worst). 'after': from the fault's end to the end of the drive.")
-    rows = []
-    for f in faults[1:]:
-        for e in study.estimators:
-            cell = study.cells[(f, e)]
-            if all("error" in c for c in cell):
-                continue
-            rows.append([f, e] + [fmt(_mean(cell, key)) for key in
-                                  ("baseline_rms_m", "during_max_m", "during_rms_m", "after_max_m", "after_rms_m")]
-                        + [_recovery_cell(cell)])
-    details.table(["fault", "estimator", "fault-free RMS", "during max", "during RMS", "after max", "after RMS",
-                   "recovery [s]"], rows)
-    placed = report.section("Where the faults were placed")
-    placed.table(["fault", "spec (or why not applicable)"],
-                 [[f, json.dumps(s) if isinstance(s, dict) else s] for f, s in study.faults.items()])
-    png = _figure(study, folder)
-    if png:
-        report.section("Error around each fault").figure(png)
-    report.section("Run").text(f"{sum(len(c) for c in study.cells.values())} runs in {study.wall_time_s:.0f} s.")
-    write_json(folder / "results.json", {
-        "command": "fault-study", "scenario": study.scenario, "seeds": study.seeds,
-        "estimators": study.estimators, "faults": study.faults, "wall_time_s": study.wall_time_s,
-        "recovery": {"factor": RECOVERY_FACTOR, "margin_m": RECOVERY_MARGIN_M, "hold_s": RECOVERY_HOLD_S},
-        "provenance": provenance(),
-        "cells": [{"fault": f, "estimator": e, "seeds": [_jsonable_cell(c) for c in cs]}
-                  for (f, e), cs in study.cells.items()],
-    })
-    report.write(folder)
+    with output_folder(folder, "results.json") as out:
+        faults = ["none", *[f for f, s in study.faults.items() if isinstance(s, dict)]]
+        report = Report(f"graphpos fault-study — {study.scenario}")
+        sec = report.section("Position error during each fault and recovery after it")
+        sec.text(f"{study.seeds} seed(s); every estimator with its defaults on the same drives. Cell: max/RMS error "
+                 "during the fault, metres (means over seeds), and in brackets the recovery time after the fault's end, "
+                 f"seconds (worst over seeds): until the error stays under {RECOVERY_FACTOR} x the estimator's fault-free "
+                 f"RMS + {RECOVERY_MARGIN_M} m for {RECOVERY_HOLD_S:.0f} s. 'never': not within the drive. Whole-drive "
+                 "faults have no recovery. Row 'none': the fault-free drive (whole-drive max/RMS). n/a: the estimator "
+                 "needs a channel the scenario lacks.")
+        sec.table(["fault"] + study.estimators,
+                  [[f] + [summary_cell(study.cells[(f, e)]) for e in study.estimators] for f in faults])
+        health = report.section("Health: output rate, covariance, exceptions")
+        rows = []
+        for f in faults:
+            for e in study.estimators:
+                ok = [c for c in study.cells[(f, e)] if "error" not in c]
+                errors = [c["error"] for c in study.cells[(f, e)] if "error" in c and not c.get("not_applicable")]
+                if not ok and not errors:
+                    continue
+                bad_rate = sum(not c["rate_kept"] for c in ok)
+                bad_cov = sum(c["cov_pd"] is False for c in ok)
+                if bad_rate or bad_cov or errors:
+                    rows.append([f, e, str(bad_rate), str(bad_cov), "; ".join(errors)[:160]])
+        if rows:
+            health.table(["fault", "estimator", "rate lost (runs)", "covariance not PD (runs)", "exception"], rows)
+        else:
+            health.text("Every run kept its output rate, every covariance given stayed positive definite, "
+                        "and no run raised.")
+        details = report.section("Details per fault and estimator")
+        details.text("Means over seeds (recovery: worst). 'after': from the fault's end to the end of the drive.")
+        rows = []
+        for f in faults[1:]:
+            for e in study.estimators:
+                cell = study.cells[(f, e)]
+                if all("error" in c for c in cell):
+                    continue
+                rows.append([f, e] + [fmt(_mean(cell, key)) for key in
+                                      ("baseline_rms_m", "during_max_m", "during_rms_m", "after_max_m", "after_rms_m")]
+                            + [_recovery_cell(cell)])
+        details.table(["fault", "estimator", "fault-free RMS", "during max", "during RMS", "after max", "after RMS",
+                       "recovery [s]"], rows)
+        placed = report.section("Where the faults were placed")
+        placed.table(["fault", "spec (or why not applicable)"],
+                     [[f, json.dumps(s) if isinstance(s, dict) else s] for f, s in study.faults.items()])
+        png = _figure(study, out)
+        if png:
+            report.section("Error around each fault").figure(png)
+        report.section("Run").text(f"{sum(len(c) for c in study.cells.values())} runs in {study.wall_time_s:.0f} s.")
+        write_json(out / "results.json", {
+            "command": "fault-study", "scenario": study.scenario, "seeds": study.seeds,
+            "estimators": study.estimators, "faults": study.faults, "wall_time_s": study.wall_time_s,
+            "recovery": {"factor": RECOVERY_FACTOR, "margin_m": RECOVERY_MARGIN_M, "hold_s": RECOVERY_HOLD_S},
+            "provenance": provenance(),
+            "cells": [{"fault": f, "estimator": e, "seeds": [_jsonable_cell(c) for c in cs]}
+                      for (f, e), cs in study.cells.items()],
+        })
+        report.write(out)
     return folder

@@ -20,6 +20,7 @@ from eval.execution import Job, SimSource, execute, load_drive, provenance
 from eval.reproduce import seeds_cell, window_stat
 from eval.report import Report, write_json
 from graphpos.errors import ConfigError
+from graphpos.io.outputs import output_folder
 
 DEFAULT_ESTIMATORS = ("fusion-ekf", "fukf", "graph-isam2", "graph-batch")
 #: Reference without tags.
@@ -47,51 +48,51 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
     if len(drive.tags) == 0:
         raise ConfigError(f"scenario '{scenario}' has no RFID tags: nothing to study")
     n_tags = {name: int(drive.tags.layout(name).size) for name in layouts}
-    jobs = [Job(src, est, layout=lay, tag={"layout": lay}) for lay in layouts for est in names for src in sources]
-    jobs += [Job(src, BASELINE) for src in sources]
-    results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="layout-study")
-    by = {(j.layout, j.estimator, j.source): r for j, r in zip(jobs, results)}
-
-    points: dict[str, list[tuple[float, float, float]]] = {}
-    rows, record = [], []
-    for lay in layouts:
-        row = [lay, str(n_tags[lay])]
-        for est in names:
-            rs = [by[(lay, est, s)] for s in sources]
-            rms = [window_stat(r, "in_tunnel", "rms_m") for r in rs]
-            ok = [v for v in rms if np.isfinite(v)]
-            if ok:
-                points.setdefault(est, []).append((n_tags[lay], float(np.mean(ok)), float(np.std(ok))))
-            row.append(seeds_cell(rs, "in_tunnel", "rms_m"))
-            record.append({"layout": lay, "n_tags": n_tags[lay], "estimator": est, "rms_in_tunnel_m": rms,
-                           "max_in_tunnel_m": [window_stat(r, "in_tunnel", "max_m") for r in rs],
-                           "errors": [r.error for r in rs]})
-        rows.append(row)
-    baseline = [by[(None, BASELINE, s)] for s in sources]
-    rows.append([f"no tags ({BASELINE})", "0"] + [seeds_cell(baseline, "in_tunnel", "rms_m")] * len(names))
-    base_rms = [window_stat(r, "in_tunnel", "rms_m") for r in baseline]
-    record.append({"layout": None, "n_tags": 0, "estimator": BASELINE, "rms_in_tunnel_m": base_rms,
-                   "errors": [r.error for r in baseline]})
-
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    report = Report(f"graphpos layout-study — {scenario}")
-    sec = report.section("RMS position error in the tunnel against the number of tags")
-    sec.text(f"Mean ± STD over {seeds} seed(s) of the Euclidean RMS error in the in_tunnel window, metres. "
-             "Same drives for every layout; a layout keeps only its tags' readings.")
-    sec.table(["layout", "tags"] + names, rows)
-    sec.text(f"The last row is dead reckoning ({BASELINE}: wheel speed, gyro and compass, no tags) on the same "
-             "drives: what the tags have to beat.")
-    ok = [v for v in base_rms if np.isfinite(v)]
-    sec.figure(plots.cost_accuracy(points, folder / "cost_accuracy.png", f"{scenario}: cost against accuracy",
-                                   baseline_m=float(np.mean(ok)) if ok else None))
-    add_failure_section(report, results)
-    took = time.perf_counter() - started
-    report.section("Run").text(f"{len(results)} runs in {took:.0f} s.")
-    write_json(folder / "results.json", {
-        "command": "layout-study", "scenario": scenario, "seeds": seeds, "estimators": names,
-        "n_tags": n_tags, "wall_time_s": took, "provenance": provenance(), "curve": record,
-        "runs": [result_record(r) for r in results],
-    })
-    report.write(folder)
+    with output_folder(folder, "results.json") as out:
+        jobs = [Job(src, est, layout=lay, tag={"layout": lay}) for lay in layouts for est in names for src in sources]
+        jobs += [Job(src, BASELINE) for src in sources]
+        results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="layout-study")
+        by = {(j.layout, j.estimator, j.source): r for j, r in zip(jobs, results)}
+
+        points: dict[str, list[tuple[float, float, float]]] = {}
+        rows, record = [], []
+        for lay in layouts:
+            row = [lay, str(n_tags[lay])]
+            for est in names:
+                rs = [by[(lay, est, s)] for s in sources]
+                rms = [window_stat(r, "in_tunnel", "rms_m") for r in rs]
+                ok = [v for v in rms if np.isfinite(v)]
+                if ok:
+                    points.setdefault(est, []).append((n_tags[lay], float(np.mean(ok)), float(np.std(ok))))
+                row.append(seeds_cell(rs, "in_tunnel", "rms_m"))
+                record.append({"layout": lay, "n_tags": n_tags[lay], "estimator": est, "rms_in_tunnel_m": rms,
+                               "max_in_tunnel_m": [window_stat(r, "in_tunnel", "max_m") for r in rs],
+                               "errors": [r.error for r in rs]})
+            rows.append(row)
+        baseline = [by[(None, BASELINE, s)] for s in sources]
+        rows.append([f"no tags ({BASELINE})", "0"] + [seeds_cell(baseline, "in_tunnel", "rms_m")] * len(names))
+        base_rms = [window_stat(r, "in_tunnel", "rms_m") for r in baseline]
+        record.append({"layout": None, "n_tags": 0, "estimator": BASELINE, "rms_in_tunnel_m": base_rms,
+                       "errors": [r.error for r in baseline]})
+
+        report = Report(f"graphpos layout-study — {scenario}")
+        sec = report.section("RMS position error in the tunnel against the number of tags")
+        sec.text(f"Mean ± STD over {seeds} seed(s) of the Euclidean RMS error in the in_tunnel window, metres. "
+                 "Same drives for every layout; a layout keeps only its tags' readings.")
+        sec.table(["layout", "tags"] + names, rows)
+        sec.text(f"The last row is dead reckoning ({BASELINE}: wheel speed, gyro and compass, no tags) on the same "
+                 "drives: what the tags have to beat.")
+        ok = [v for v in base_rms if np.isfinite(v)]
+        sec.figure(plots.cost_accuracy(points, out / "cost_accuracy.png", f"{scenario}: cost against accuracy",
+                                       baseline_m=float(np.mean(ok)) if ok else None))
+        add_failure_section(report, results)
+        took = time.perf_counter() - started
+        report.section("Run").text(f"{len(results)} runs in {took:.0f} s.")
+        write_json(out / "results.json", {
+            "command": "layout-study", "scenario": scenario, "seeds": seeds, "estimators": names,
+            "n_tags": n_tags, "wall_time_s": took, "provenance": provenance(), "curve": record,
+            "runs": [result_record(r) for r in results],
+        })
+        report.write(out)
     return Outcome(results, folder)

@@ -13,7 +13,7 @@ import numpy as np  # noqa: E402
 from eval.metrics import error_series, wheel_speed_error  # noqa: E402
 from graphpos.drive import Drive  # noqa: E402
 from graphpos.estimate import Estimate  # noqa: E402
-from graphpos.io.files import atomic_output  # noqa: E402
+from graphpos.io.outputs import atomic_output  # noqa: E402
 
 _DPI = 110
 

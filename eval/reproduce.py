@@ -37,12 +37,13 @@ from typing import Any
 import numpy as np
 
 from eval import plots
-from eval.evaluate import Outcome, add_failure_section, cell_error, result_record, safe_name
+from eval.evaluate import Outcome, add_failure_section, cell_error, result_record
 from eval.execution import Job, JobResult, SimSource, execute, load_drive, provenance
 from eval.experiments import GRAPH_ESTIMATORS, LIU2016_BOUND_M, Experiment, experiments
 from eval.metrics import WHOLE
 from eval.report import Report, fmt, mean_spread, write_json
 from graphpos.drive import Drive, Window
+from graphpos.io.outputs import output_folder, safe_name
 
 #: Seeds per experiment.
 SEEDS_FULL = 5
@@ -241,77 +242,77 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
         for name in PLAZA_ESTIMATORS:
             runs.add(plaza_drive, name, None, keep=True, range_model=plaza_model)
 
-    folder.mkdir(parents=True, exist_ok=True)
-    keys = list(runs.jobs)
-    results = execute([runs.jobs[k] for k in keys], workers=workers, scheduler=scheduler, progress=progress,
-                      desc="reproduce")
-    res = dict(zip(keys, results))
+    with output_folder(folder, "results.json") as out:
+        keys = list(runs.jobs)
+        results = execute([runs.jobs[k] for k in keys], workers=workers, scheduler=scheduler, progress=progress,
+                          desc="reproduce")
+        res = dict(zip(keys, results))
 
-    report = Report("graphpos reproduce — the papers' tables on simulated drives" + (" (quick)" if quick else ""))
-    report.section("How to read this").text(
-        f"Each cell is the mean ± STD over {n_seeds} seed(s) of simulated drives built to the paper's "
-        "specification (graphpos.sim scenarios); 'paper' columns are the published single-test figures. Errors "
-        "are Euclidean 2-D position errors in metres against the simulated truth, absolute (no alignment). "
-        "The factor-graph estimators (graph-*) are extra rows: the papers have no such figures. "
-        "FAILED cells name the error; n/a means the estimator lacks a sensor the drive does not carry."
-    )
-    summary = report.section("Summary: the papers' best filter against the factor graphs")
-    tables: dict[str, Any] = {}
+        report = Report("graphpos reproduce — the papers' tables on simulated drives" + (" (quick)" if quick else ""))
+        report.section("How to read this").text(
+            f"Each cell is the mean ± STD over {n_seeds} seed(s) of simulated drives built to the paper's "
+            "specification (graphpos.sim scenarios); 'paper' columns are the published single-test figures. Errors "
+            "are Euclidean 2-D position errors in metres against the simulated truth, absolute (no alignment). "
+            "The factor-graph estimators (graph-*) are extra rows: the papers have no such figures. "
+            "FAILED cells name the error; n/a means the estimator lacks a sensor the drive does not carry."
+        )
+        summary = report.section("Summary: the papers' best filter against the factor graphs")
+        tables: dict[str, Any] = {}
 
-    header, rows, record = _table1(n_seeds)
-    report.section("song2016 Table 1 — RSS to distance fitting errors").table(header, rows).text(
-        "From graphpos.ranging.table1: held-out readings of simulated calibration collections, mean ± STD over "
-        "calibration seeds. The paper does not define its 'fitting error' or its unit; ours is given both as a "
-        "distance error [m] and as an RSS error [0-255 units] (see that module's docstring)."
-    )
-    tables["song2016-table1"] = record
+        header, rows, record = _table1(n_seeds)
+        report.section("song2016 Table 1 — RSS to distance fitting errors").table(header, rows).text(
+            "From graphpos.ranging.table1: held-out readings of simulated calibration collections, mean ± STD over "
+            "calibration seeds. The paper does not define its 'fitting error' or its unit; ours is given both as a "
+            "distance error [m] and as an RSS error [0-255 units] (see that module's docstring)."
+        )
+        tables["song2016-table1"] = record
 
-    plotted: set = set()
-    for exp in exps:
-        srcs = sources[exp.key]
-        sec = report.section(exp.title)
-        sec.text(f"Scenario {exp.scenario}" + (f", pattern {exp.pattern}" if exp.pattern else "")
-                 + f"; window: {exp.window}." + (f" {exp.note}" if exp.note else ""))
-        make = _zones_table if exp.metric == "drms2_zones" else _experiment_table
-        header, rows, record = make(exp, res, srcs)
-        sec.table(header, rows)
-        tables[exp.key] = {"title": exp.title, "scenario": exp.scenario, "pattern": exp.pattern,
-                           "window": exp.window, "seeds": list(range(n_seeds)), "rows": record}
-        first = srcs[0]
-        plot_key = (first, tuple((r.estimator, r.layout) for r in exp.all_rows()))
-        if plot_key not in plotted:  # song2014 Tables 4 and 5/6 show the same runs in two windows
-            plotted.add(plot_key)
-            estimates = [res[(first, r.estimator, r.layout)].estimate for r in exp.all_rows()
-                         if res[(first, r.estimator, r.layout)].ok and len(res[(first, r.estimator, r.layout)].estimate)]
-            if estimates:
-                drive = load_drive(first)
-                sub = folder / safe_name(exp.key)
-                sec.figure(plots.trajectories(drive, estimates, sub / "trajectories.png"))
-                sec.figure(plots.error_vs_time(drive, estimates, sub / "error_vs_time.png"))
-                if exp.key == "song2016-table3":
-                    speed = plots.speed_error(drive, estimates, sub / "speed_error.png")
-                    if speed:
-                        sec.figure(speed)
+        plotted: set = set()
+        for exp in exps:
+            srcs = sources[exp.key]
+            sec = report.section(exp.title)
+            sec.text(f"Scenario {exp.scenario}" + (f", pattern {exp.pattern}" if exp.pattern else "")
+                     + f"; window: {exp.window}." + (f" {exp.note}" if exp.note else ""))
+            make = _zones_table if exp.metric == "drms2_zones" else _experiment_table
+            header, rows, record = make(exp, res, srcs)
+            sec.table(header, rows)
+            tables[exp.key] = {"title": exp.title, "scenario": exp.scenario, "pattern": exp.pattern,
+                               "window": exp.window, "seeds": list(range(n_seeds)), "rows": record}
+            first = srcs[0]
+            plot_key = (first, tuple((r.estimator, r.layout) for r in exp.all_rows()))
+            if plot_key not in plotted:  # song2014 Tables 4 and 5/6 show the same runs in two windows
+                plotted.add(plot_key)
+                estimates = [res[(first, r.estimator, r.layout)].estimate for r in exp.all_rows()
+                             if res[(first, r.estimator, r.layout)].ok and len(res[(first, r.estimator, r.layout)].estimate)]
+                if estimates:
+                    drive = load_drive(first)
+                    sub = out / safe_name(exp.key)
+                    sec.figure(plots.trajectories(drive, estimates, sub / "trajectories.png"))
+                    sec.figure(plots.error_vs_time(drive, estimates, sub / "error_vs_time.png"))
+                    if exp.key == "song2016-table3":
+                        speed = plots.speed_error(drive, estimates, sub / "speed_error.png")
+                        if speed:
+                            sec.figure(speed)
 
-    _fill_summary(summary, [e for e in exps if e.metric == "max_rms"], res, sources)
-    _speed_section(report, res, sources.get("song2016-table3", []), tables)
-    _degraded_section(report, res, degraded, tables)
-    if plaza_drive is not None:
-        _plaza_section(report, res, plaza_drive, folder, tables)
-    else:
-        report.section("Real data (Plaza)").text(f"Skipped: {plaza_path} not found (give --plaza FILE.mat).")
+        _fill_summary(summary, [e for e in exps if e.metric == "max_rms"], res, sources)
+        _speed_section(report, res, sources.get("song2016-table3", []), tables)
+        _degraded_section(report, res, degraded, tables)
+        if plaza_drive is not None:
+            _plaza_section(report, res, plaza_drive, out, tables)
+        else:
+            report.section("Real data (Plaza)").text(f"Skipped: {plaza_path} not found (give --plaza FILE.mat).")
 
-    add_failure_section(report, results)
-    took = time.perf_counter() - started
-    busy = sum(r.metrics["wall_time_s"] for r in results if r.ok)
-    report.section("Run").text(f"{len(results)} runs ({len(results) - sum(r.ok for r in results)} without figures) "
-                               f"in {took:.0f} s of wall time ({busy:.0f} s inside the estimators, summed over "
-                               f"workers); seeds {n_seeds}; quick={quick}.")
-    write_json(folder / "results.json", {
-        "command": "reproduce", "quick": quick, "seeds": n_seeds, "wall_time_s": took,
-        "provenance": provenance(), "tables": tables, "runs": [result_record(r) for r in results],
-    })
-    report.write(folder)
+        add_failure_section(report, results)
+        took = time.perf_counter() - started
+        busy = sum(r.metrics["wall_time_s"] for r in results if r.ok)
+        report.section("Run").text(f"{len(results)} runs ({len(results) - sum(r.ok for r in results)} without figures) "
+                                   f"in {took:.0f} s of wall time ({busy:.0f} s inside the estimators, summed over "
+                                   f"workers); seeds {n_seeds}; quick={quick}.")
+        write_json(out / "results.json", {
+            "command": "reproduce", "quick": quick, "seeds": n_seeds, "wall_time_s": took,
+            "provenance": provenance(), "tables": tables, "runs": [result_record(r) for r in results],
+        })
+        report.write(out)
     return Outcome(results, folder)
 
 

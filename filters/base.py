@@ -13,7 +13,15 @@ A :class:`FilterEstimator` subclass implements a few handlers
   grouped and applied together, as one observation vector (song2016 eq. 10);
   their distances and 1-sigmas come from the estimator's
   :class:`~graphpos.ranging.RangeModel` (``graphpos.ranging.default_range_model``
-  of the drive when none is given);
+  of the drive when none is given), a reading without the field that model
+  reads from the drive's default model for the field it carries
+  (:func:`graphpos.ranging.reading_models`: a drive may mix readings with a
+  range and readings with RSS only);
+* non-finite samples: a sample whose value a handler needs is not finite is
+  a gap in that sensor, skipped and counted per channel and field in
+  ``diagnostics["non_finite"]``; non-finite accelerations (on a drive that
+  has accelerometers) are counted and handed on as NaN, which the handlers
+  take as a sample without accelerometers;
 * output epochs on a fixed grid (``output_rate_hz``; the filter is predicted to
   each epoch) or, for RFID-only estimators, one output per scan;
 * ``run``: the ``start / process / finish`` loop over a drive, done over
@@ -28,6 +36,14 @@ the first seconds) and starts when it gives a
 papers start every filter from DGPS before the tunnel (song2016 §6): on the
 simulated paper drives that is the short ``gnss`` channel of the approach.
 The truth is never read.
+
+Gaps, as in the factor graphs (:mod:`graphpos.graph.builder`): such a
+filter's odometry channels (``imu``, ``wheel``) are held for at most
+:data:`MAX_ODOMETRY_GAP_S`. When one of them has been silent for longer,
+the filter's track ends (no output is extrapolated into the gap); once
+every one is back, the filter starts again from a fresh ignition, as at
+the drive's start. Each gap and its restart are listed in
+``diagnostics["odometry_gaps"]``.
 """
 
 from __future__ import annotations
@@ -38,10 +54,11 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from graphpos.drive import Drive, Measurement
+from graphpos.drive import Channel, Drive, Measurement
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
 from graphpos.ignition import NOT_STARTED, Ignition, IgnitionConfig, StartState
+from graphpos.ranging.drive_models import ranges_by_field, reading_models
 
 
 #: Columns handed to :meth:`FilterEstimator._on_fix` for each position-fix channel.
@@ -58,6 +75,20 @@ _PRE_START_COLUMNS = {"imu": ("accel_x_mps2", "accel_y_mps2", "yaw_rate_radps"),
 #: Channels every filter that needs a start reads until it has started, to
 #: find its start (ranges, fixes, heading), whether or not its model uses them.
 _START_CHANNELS = ("rfid", "rsu", "gnss", "compass")
+
+#: Fields of each channel that must be finite for its handler (else the sample is skipped).
+_NEEDED_FIELDS = {"imu": ("yaw_rate_radps",), "wheel": ("speed_mps",), "compass": ("yaw_rad",),
+                  "gnss": ("east_m", "north_m", "sigma_m"), "rsu": ("sigma_m",)}
+#: Fields whose non-finite samples are counted but handed on (the handlers bridge them).
+_BRIDGED_FIELDS = {"imu": ("accel_x_mps2", "accel_y_mps2")}
+
+#: Odometry channels of a filter that needs a start: one silent for longer
+#: than :data:`MAX_ODOMETRY_GAP_S` ends its track (module docstring).
+_ODOMETRY_CHANNELS = ("imu", "wheel")
+#: Longest odometry silence held, s: the graphs' default
+#: (:attr:`graphpos.graph.config.GraphConfig.max_odometry_gap_s`; MRCLAM's
+#: odometry pauses for up to 1.03 s).
+MAX_ODOMETRY_GAP_S = 2.0
 
 
 class FilterEstimator(Estimator):
@@ -102,23 +133,30 @@ class FilterEstimator(Estimator):
 
     # -- contract ---------------------------------------------------------------
     def start(self, drive: Drive) -> None:
-        self._range_model = self._resolve_range_model(drive)
+        self._range_models = self._resolve_range_model(drive)
         self._tag_index = {int(t): i for i, t in enumerate(drive.tags.tag_id)}
         self._tag_en = np.column_stack([drive.tags.east_m, drive.tags.north_m])
         self._rsu_en = {int(i): (float(e), float(n)) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
         self._allowed = set(int(t) for t in drive.tags.layout(self.layout)) if self.layout else None
         self._rows: list[OutputRow] = []
         self._pending: list[dict[str, float]] = []
-        self.diagnostics: dict[str, Any] = {"scans": 0, "ranges_used": 0, "ranges_gated": 0, "ranges_unusable": 0, "late_scans": 0}
+        self.diagnostics: dict[str, Any] = {"scans": 0, "ranges_used": 0, "ranges_gated": 0, "ranges_unusable": 0, "late_scans": 0,
+                                            "non_finite": {}, "odometry_gaps": []}
         self._period = 1.0 / float(getattr(self.config, "output_rate_hz", 10.0))
         self._drive = drive
-        user = self.start_pose(drive)
-        self._ignition = Ignition(self._tag_en, drive.tags.wall_side, user=user, has_wheel=drive.has("wheel"), config=self._ignition_config())
-        self._started = False
+        self._ignition = self._new_ignition(drive, self.start_pose(drive))
+        self._started = self._ever_started = False
         self._own = set(super().channels_used(drive))
+        #: Last sample of each odometry channel seen (a filter that needs a start), and when its track was lost.
+        self._last_odometry_s = {}
+        self._lost_s: float | None = None
+        self._bridged = dict(_BRIDGED_FIELDS) if drive.has_accelerometers else {}
         self._t = self._first_time(drive)
         if not self.needs_start:
             self._begin(self._t, self._ignition.at(self._t))
+
+    def _new_ignition(self, drive: Drive, user) -> Ignition:
+        return Ignition(self._tag_en, drive.tags.wall_side, user=user, has_wheel=drive.has("wheel"), config=self._ignition_config())
 
     def _ignition_config(self) -> IgnitionConfig:
         """Ignition's settings, with this filter's own compass sigma where its config has one."""
@@ -131,10 +169,41 @@ class FilterEstimator(Estimator):
         self._next_out = math.ceil(t0_s / self._period - 1e-9) * self._period
         self._n_out = 0
         self._t_grid0 = self._next_out
-        self._started = True
-        if start is not None:
+        self._started = self._ever_started = True
+        if start is not None and "start" not in self.diagnostics:
             self.diagnostics["start"] = start.describe()
+        elif start is not None:
+            self.diagnostics["odometry_gaps"][-1]["restart"] = start.describe()
         self._init_filter(self._drive, start)
+
+    def _follow_odometry(self, kind: str, t_s: float) -> bool:
+        """Keep the odometry's clock at a measurement; False when the measurement falls while the track is lost.
+
+        A track (or the search for its start) is lost at the first
+        measurement after a seen odometry channel has been silent for more
+        than :data:`MAX_ODOMETRY_GAP_S` (a scan in progress is applied
+        first); the next measurement at which every one is fresh again
+        starts a fresh ignition.
+        """
+        if not self.needs_start:
+            return True
+        last = self._last_odometry_s
+        silent_since = min((t for t in last.values() if t_s - t > MAX_ODOMETRY_GAP_S), default=None)
+        if kind in _ODOMETRY_CHANNELS and kind in self._own:
+            last[kind] = t_s
+        if silent_since is not None and self._lost_s is None:
+            if self._pending:
+                self._flush_scan()
+            self._started = False
+            self._lost_s = silent_since
+        if self._lost_s is None or self._started:
+            return True
+        if any(t_s - t > MAX_ODOMETRY_GAP_S for t in last.values()):
+            return False
+        self.diagnostics["odometry_gaps"].append({"from_s": self._lost_s, "to_s": t_s, "restart": None})
+        self._ignition = self._new_ignition(self._drive, None)
+        self._lost_s = None
+        return True
 
     def _ignite(self, state: StartState | None) -> None:
         if state is not None:
@@ -161,11 +230,30 @@ class FilterEstimator(Estimator):
             return
         self._ignite(state)
 
-    def _resolve_range_model(self, drive: Drive):
-        """The estimator's range model for this drive (built once per drive)."""
-        if getattr(self, "_model_for", None) is not drive:
-            self._model, self._model_for = self.resolved_range_model(drive), drive
-        return self._model
+    def _resolve_range_model(self, drive: Drive) -> dict:
+        """The range model of each RFID reading field for this drive (built once per drive; :func:`graphpos.ranging.reading_models`)."""
+        if getattr(self, "_models_for", None) is not drive:
+            models = reading_models(drive, self.resolved_range_model(drive), self.name) if drive.has("rfid") else {}
+            self._models, self._models_for = models, drive
+        return self._models
+
+    def _finite_rows(self, kind: str, columns: dict[str, np.ndarray]) -> np.ndarray:
+        """Rows of a channel whose needed fields are finite; non-finite values counted in ``diagnostics["non_finite"]``.
+
+        RFID readings with no finite value in any field the range models
+        read are counted too (the scan finds them unusable).
+        """
+        usable = np.ones(len(columns["t_s"]), dtype=bool)
+        checks = [(f"{kind}.{name}", ~np.isfinite(columns[name]), name in _NEEDED_FIELDS.get(kind, ()))
+                  for name in (*_NEEDED_FIELDS.get(kind, ()), *self._bridged.get(kind, ()))]
+        if kind == "rfid" and self._range_models:
+            checks.append(("rfid." + "/".join(self._range_models), ~np.any([np.isfinite(columns[f]) for f in self._range_models], axis=0), False))
+        for key, bad, needed in checks:
+            if bad.any():
+                self.diagnostics["non_finite"][key] = self.diagnostics["non_finite"].get(key, 0) + int(bad.sum())
+                if needed:
+                    usable &= ~bad
+        return usable
 
     def _first_time(self, drive: Drive) -> float:
         starts = [float(drive.channels[c].t_s[0]) for c in self.channels_used(drive)]
@@ -181,6 +269,9 @@ class FilterEstimator(Estimator):
     def process(self, measurement: Measurement) -> list[OutputRow]:
         n0 = len(self._rows)
         m = measurement
+        usable = bool(self._finite_rows(m.channel, {k: np.array([x]) for k, x in m.values.items()})[0])
+        if not usable or not self._follow_odometry(m.channel, m.t_s):
+            return self._rows[n0:]  # a gap in the sensor, or in the odometry
         if self._started and m.channel not in self._own:
             return []  # read for ignition only
         if self._pending and (m.channel != "rfid" or (m.t_s, m.arrival_s) != self._pending_key):
@@ -208,7 +299,7 @@ class FilterEstimator(Estimator):
     def finish(self) -> Estimate:
         if self._pending:
             self._flush_scan()
-        if not self._started:
+        if not self._ever_started:
             self.diagnostics["not_started"] = NOT_STARTED
             self.diagnostics["ignition_attempts"] = self._ignition.attempts
         return Estimate.from_rows(
@@ -253,10 +344,8 @@ class FilterEstimator(Estimator):
         rows, self._pending = self._pending, []
         t_s, arrival_s = self._pending_key
         ids = [int(r["tag_id"]) for r in rows]
-        col = self._range_model.input_column
-        reading = np.array([r[col] for r in rows], dtype=np.float64)
-        d = self._range_model.predict_distance_m(reading)
-        self._scan(t_s, arrival_s, ids, d, self._range_model.predict_sigma_m(d))
+        d, sigma, _ = ranges_by_field(self._range_models, Channel("rfid", {k: [r[k] for r in rows] for k in rows[0]}, validate=False))
+        self._scan(t_s, arrival_s, ids, d, sigma)
 
     def _scan(self, t_s: float, arrival_s: float, ids: list[int], d: np.ndarray, sigma: np.ndarray) -> None:
         keep = np.isfinite(d) & np.isfinite(sigma) & (sigma > 0)
@@ -299,6 +388,7 @@ class FilterEstimator(Estimator):
         order = np.lexsort((row, code, key))
         code, row = code[order].tolist(), row[order].tolist()
         cols: list[Any] = []
+        usable = [self._finite_rows(name, drive.channels[name].columns).tolist() for name in names]
         for name in names:
             ch = drive.channels[name]
             if name == "imu":
@@ -310,7 +400,7 @@ class FilterEstimator(Estimator):
             elif name in _FIX_CHANNELS:
                 cols.append((ch.t_s.tolist(), list(zip(*(ch[c].tolist() for c in _FIX_CHANNELS[name])))))
             elif name == "rfid":
-                d, s = self._range_model.ranges(ch)
+                d, s, _ = ranges_by_field(self._range_models, ch)
                 cols.append((ch.t_s.tolist(), ch.arrival_s.tolist(), ch.tag_id.astype(np.int64).tolist(), d, s))
             else:
                 cols.append(None)
@@ -319,9 +409,9 @@ class FilterEstimator(Estimator):
         while i < n_events:
             c, r = code[i], row[i]
             kind = names[c]
-            if self._started and kind not in self._own:
+            if not usable[c][r] or not self._follow_odometry(kind, cols[c][0][r]) or (self._started and kind not in self._own):
                 i += 1
-                continue  # read for ignition only
+                continue  # a gap in the sensor or in the odometry, or read for ignition only
             if not self._started and kind != "rfid":
                 if kind == "imu":
                     ts, ax, ay, wz = cols[c]

@@ -130,6 +130,7 @@ class _Epoch:
     def __init__(self) -> None:
         self.ax = self.ay = self.wz = 0.0
         self.imu_n = 0
+        self.accel_n = 0  # IMU samples with finite accelerations (a NaN one is a gap)
         self.wheel_sum = 0.0
         self.wheel_n = 0
         self.yaw: float | None = None
@@ -171,14 +172,16 @@ class Song2014Fusion(FilterEstimator):
         self._markov = np.asarray(cfg.markov, dtype=np.float64) if n > 1 else np.ones((1, 1))
         self._mu_log: list[list[float]] = []
         self._fading_log: list[float] = []
-        self.diagnostics["fixes_used"] = 0
+        self.diagnostics.setdefault("fixes_used", 0)  # kept over a restart after an odometry gap
 
     def _on_imu(self, t_s, accel_x, accel_y, yaw_rate):
         e = self._epoch
-        e.ax += accel_x
-        e.ay += accel_y
         e.wz += yaw_rate
         e.imu_n += 1
+        if math.isfinite(accel_x) and math.isfinite(accel_y):
+            e.ax += accel_x
+            e.ay += accel_y
+            e.accel_n += 1
 
     def _on_wheel(self, t_s, speed_mps):
         self._epoch.wheel_sum += speed_mps
@@ -195,7 +198,9 @@ class Song2014Fusion(FilterEstimator):
     def _output(self, t_s: float) -> OutputRow:
         epoch, self._epoch = self._epoch, _Epoch()
         if epoch.imu_n:
-            self._last_input = np.array([epoch.ax, epoch.ay, epoch.wz]) / epoch.imu_n
+            # an epoch without accelerometer samples holds the last accelerations
+            accel = np.array([epoch.ax, epoch.ay]) / epoch.accel_n if epoch.accel_n else self._last_input[:2]
+            self._last_input = np.array([accel[0], accel[1], epoch.wz / epoch.imu_n])
         if t_s > self._t_state:
             self._step(t_s, epoch)
         x, P = self._combined()

@@ -718,7 +718,7 @@ class Fukf(FilterEstimator):
         self._reset()
         self._R_wheel = _wheel_variances(cfg)
         self._var_compass = cfg.compass_sigma_rad**2
-        self.diagnostics["fusions"] = 0
+        self.diagnostics.setdefault("fusions", 0)  # kept over a restart after an odometry gap
 
     def _set_beta(self, beta):
         self._beta = tuple(float(b) for b in beta)

@@ -6,9 +6,12 @@ sorted by measurement time ``t_s``. Column names carry their unit; frames are
 the project's: east-north metres in a local frame, yaw from east,
 counter-clockwise, in radians (see ``../shared/papers/README.md``).
 
-Every channel is validated on construction; a failure raises
-:class:`~graphpos.errors.DriveError` naming the channel, the row and the
-reason.
+Every channel, map and origin is validated on construction against its
+column specs (:data:`CHANNEL_SPECS`, :data:`TAG_SPECS`, :data:`RSU_SPECS`,
+:data:`ORIGIN_SPECS`; :func:`check_column`): finite where required, within
+plausible bounds, whole for ids, never truncated. A failure raises
+:class:`~graphpos.errors.DriveError` naming the channel (or map), the row,
+the column and the value.
 """
 
 from __future__ import annotations
@@ -109,6 +112,83 @@ CHANNEL_SPECS: dict[str, tuple[ColumnSpec, ...]] = {
 }
 
 CHANNEL_NAMES: tuple[str, ...] = tuple(CHANNEL_SPECS)
+
+#: Columns of the tag map (:class:`TagMap`), checked as channel columns are.
+#: ``wall_side``: +1 left, -1 right, 0 not on a wall; ``group``: -1 for none.
+TAG_SPECS: tuple[ColumnSpec, ...] = (
+    ColumnSpec("tag_id", 0, 2**53, integer=True),
+    _EAST,
+    _NORTH,
+    ColumnSpec("wall_side", -1, 1, integer=True),
+    ColumnSpec("group", -1, 2**53, integer=True),
+)
+#: Columns of the RSU map (:class:`RsuMap`).
+RSU_SPECS: tuple[ColumnSpec, ...] = (ColumnSpec("rsu_id", 0, 2**53, integer=True), _EAST, _NORTH)
+#: Fields of the geodetic origin (:class:`GeoOrigin`): WGS84 degrees, and
+#: metres from the deepest road tunnel to the highest pass with margin.
+ORIGIN_SPECS: tuple[ColumnSpec, ...] = (
+    ColumnSpec("lat_deg", -90.0, 90.0),
+    ColumnSpec("lon_deg", -180.0, 180.0),
+    ColumnSpec("alt_m", -1e4, 1e4),
+)
+
+
+def check_column(what: str, spec: ColumnSpec, values: np.ndarray, rows: bool = True) -> None:
+    """Check the values of one column against its spec.
+
+    A required column must be finite, an optional one may hold NaN (never
+    an infinity); every finite value must lie within the plausible bounds
+    and, for an integer column, be whole.
+
+    Parameters
+    ----------
+    what : str
+        The channel or map (``tags``, ``rsus``, ``origin``) of the column.
+    spec : ColumnSpec
+    values : array of float
+        The column (1-D).
+    rows : bool
+        Name the row of a bad value (False for a single value).
+
+    Raises
+    ------
+    DriveError
+        Naming ``what``, the row, the column and the value.
+    """
+    finite = np.isfinite(values)
+    bad = ~finite if spec.required else np.isinf(values)
+    with np.errstate(invalid="ignore"):
+        out = finite & ((values < spec.lo) | (values > spec.hi))
+    fraction = finite & (values != np.round(values)) if spec.integer else np.zeros(values.shape, dtype=bool)
+    for fault, reason in (
+        (bad, lambda v: f"{spec.name} is {v} (must be finite)"),
+        (out, lambda v: f"{spec.name} = {v:.6g} is outside the plausible range [{spec.lo:g}, {spec.hi:g}]"),
+        (fraction, lambda v: f"{spec.name} = {float(v)!r} is not a whole number"),
+    ):
+        if fault.any():
+            row = int(np.argmax(fault))
+            raise DriveError(what, row if rows else None, reason(values[row]))
+
+
+def _checked_column(what: str, spec: ColumnSpec, values: Any, size: int | None, rows: bool = True) -> np.ndarray:
+    """``values`` as a checked 1-D column (:func:`check_column`) of ``size``
+    entries (any size if None): int64 for an integer column, else float64."""
+    try:
+        arr = np.asarray(values, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise DriveError(what, None, f"{spec.name} is not numeric") from None
+    if size is not None and arr.size != size:
+        raise DriveError(what, None, f"{spec.name} has {arr.size} entries for {size} ids")
+    check_column(what, spec, arr, rows)
+    return arr.astype(np.int64) if spec.integer else arr
+
+
+def _check_unique(what: str, name: str, ids: np.ndarray) -> None:
+    """DriveError naming the first id listed twice, if any."""
+    values, counts = np.unique(ids, return_counts=True)
+    if (counts > 1).any():
+        first = int(np.argmax(counts > 1))
+        raise DriveError(what, None, f"{name}s are not unique: {name} {int(values[first])} is listed {int(counts[first])} times")
 
 
 def truth_from_poses(t_s: np.ndarray, east_m: np.ndarray, north_m: np.ndarray, yaw_rad: np.ndarray) -> "Channel":
@@ -238,24 +318,7 @@ class Channel:
     # -- validation ---------------------------------------------------------
     def _validate(self) -> None:
         for spec in self.specs:
-            arr = self._columns[spec.name]
-            finite = np.isfinite(arr)
-            bad = ~finite if spec.required else np.isinf(arr)
-            if bad.any():
-                row = int(np.argmax(bad))
-                raise DriveError(self.kind, row, f"{spec.name} is {arr[row]} (must be finite)")
-            with np.errstate(invalid="ignore"):
-                out = finite & ((arr < spec.lo) | (arr > spec.hi))
-            if out.any():
-                row = int(np.argmax(out))
-                raise DriveError(
-                    self.kind, row, f"{spec.name} = {arr[row]:.6g} is outside the plausible range [{spec.lo:g}, {spec.hi:g}]"
-                )
-            if spec.integer:
-                frac = finite & (arr != np.round(arr))
-                if frac.any():
-                    row = int(np.argmax(frac))
-                    raise DriveError(self.kind, row, f"{spec.name} = {float(arr[row])!r} is not a whole number")
+            check_column(self.kind, spec, self._columns[spec.name])
         t = self._columns["t_s"]
         if t.size > 1:
             back = np.diff(t) < 0
@@ -272,13 +335,6 @@ class Channel:
 # ---------------------------------------------------------------------------
 # Maps, windows, metadata
 # ---------------------------------------------------------------------------
-
-
-def _as_int_ids(values: Any, what: str) -> np.ndarray:
-    arr = np.asarray(values, dtype=np.float64).reshape(-1)
-    if not np.all(np.isfinite(arr)) or np.any(arr != np.round(arr)) or np.any(arr < 0):
-        raise DriveError(what, None, "ids must be non-negative whole numbers")
-    return arr.astype(np.int64)
 
 
 @dataclass(frozen=True, eq=False)
@@ -307,27 +363,13 @@ class TagMap:
     layouts: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        ids = _as_int_ids(self.tag_id, "tags")
-        n = ids.size
-        object.__setattr__(self, "tag_id", ids)
-        for name in ("east_m", "north_m"):
-            arr = np.asarray(getattr(self, name), dtype=np.float64).reshape(-1)
-            if arr.size != n:
-                raise DriveError("tags", None, f"{name} has {arr.size} entries for {n} tags")
-            if not np.all(np.isfinite(arr)) or np.any(np.abs(arr) > 1e7):
-                row = int(np.argmax(~np.isfinite(arr) | (np.abs(arr) > 1e7)))
-                raise DriveError("tags", row, f"{name} is not a plausible coordinate")
-            object.__setattr__(self, name, arr)
-        for name in ("wall_side", "group"):
-            arr = np.asarray(getattr(self, name), dtype=np.int64).reshape(-1)
-            if arr.size != n:
-                raise DriveError("tags", None, f"{name} has {arr.size} entries for {n} tags")
-            object.__setattr__(self, name, arr)
-        if np.any(~np.isin(self.wall_side, (-1, 0, 1))):
-            raise DriveError("tags", int(np.argmax(~np.isin(self.wall_side, (-1, 0, 1)))), "wall_side must be -1, 0 or +1")
-        if np.unique(ids).size != n:
-            raise DriveError("tags", None, "tag ids are not unique")
-        layouts = {k: np.sort(_as_int_ids(v, f"layout '{k}'")) for k, v in dict(self.layouts).items()}
+        n = np.size(self.tag_id)
+        for spec in TAG_SPECS:
+            object.__setattr__(self, spec.name, _checked_column("tags", spec, getattr(self, spec.name), n))
+        ids = self.tag_id
+        _check_unique("tags", "tag id", ids)
+        layouts = {k: np.sort(_checked_column("tags", dataclasses.replace(TAG_SPECS[0], name=f"layout '{k}' tag id"), v, None))
+                   for k, v in dict(self.layouts).items()}
         layouts.setdefault("dense", np.sort(ids))
         for name, members in layouts.items():
             missing = members[~np.isin(members, ids)]
@@ -379,15 +421,10 @@ class RsuMap:
     north_m: np.ndarray
 
     def __post_init__(self) -> None:
-        ids = _as_int_ids(self.rsu_id, "rsus")
-        object.__setattr__(self, "rsu_id", ids)
-        for name in ("east_m", "north_m"):
-            arr = np.asarray(getattr(self, name), dtype=np.float64).reshape(-1)
-            if arr.size != ids.size or not np.all(np.isfinite(arr)):
-                raise DriveError("rsus", None, f"{name} must be finite, one per RSU")
-            object.__setattr__(self, name, arr)
-        if np.unique(ids).size != ids.size:
-            raise DriveError("rsus", None, "RSU ids are not unique")
+        n = np.size(self.rsu_id)
+        for spec in RSU_SPECS:
+            object.__setattr__(self, spec.name, _checked_column("rsus", spec, getattr(self, spec.name), n))
+        _check_unique("rsus", "RSU id", self.rsu_id)
 
     @classmethod
     def empty(cls) -> "RsuMap":
@@ -412,7 +449,7 @@ class Window:
     end_s: float
 
     def __post_init__(self) -> None:
-        if not (np.isfinite(self.start_s) and np.isfinite(self.end_s)) or self.end_s < self.start_s:
+        if not (_T.lo <= self.start_s <= self.end_s <= _T.hi):
             raise DriveError("windows", None, f"window '{self.label}' has bad bounds [{self.start_s}, {self.end_s}]")
 
     def contains(self, t_s: np.ndarray) -> np.ndarray:
@@ -426,6 +463,10 @@ class GeoOrigin:
     lat_deg: float = 29.5630
     lon_deg: float = 106.5516
     alt_m: float = 0.0
+
+    def __post_init__(self) -> None:
+        for spec in ORIGIN_SPECS:
+            _checked_column("origin", spec, getattr(self, spec.name), None, rows=False)
 
 
 class Measurement(NamedTuple):
@@ -503,8 +544,19 @@ class Drive:
 
     @property
     def has_accelerometers(self) -> bool:
-        """True when the ``imu`` channel carries accelerometer readings."""
-        return self.has("imu") and bool(np.isfinite(self.channels["imu"].accel_x_mps2).all())
+        """True when the ``imu`` channel carries accelerometer readings: both axes finite in most rows.
+
+        A non-finite sample among them is a gap in the accelerometers, which
+        the estimators bridge (hold the last sample, or use their model
+        without accelerometers for a while), not their absence: one NaN in
+        7601 rows keeps the inertial models (issue 14, item 5). A source
+        without accelerometers (Plaza, MRCLAM) leaves every row NaN.
+        """
+        if not self.has("imu"):
+            return False
+        imu = self.channels["imu"]
+        finite = np.isfinite(imu.accel_x_mps2) & np.isfinite(imu.accel_y_mps2)
+        return 2 * int(np.count_nonzero(finite)) > len(imu)
 
     def __getattr__(self, name: str) -> Channel:
         # drive.imu, drive.truth ... for present channels

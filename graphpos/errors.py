@@ -65,6 +65,12 @@ class EstimationError(GraphposError):
     """An estimator failed on valid input (e.g. an optimiser did not converge)."""
 
 
+class DriveCheckError(GraphposError):
+    """A drive reads but makes no sense to estimate on: it breaks a rule of
+    level ``error`` of :data:`graphpos.io.checks.DRIVE_RULES` (e.g. every
+    time stamp equal)."""
+
+
 @contextmanager
 def naming_file(path: str | os.PathLike) -> Iterator[None]:
     """Make every :class:`GraphposError` raised inside name the file ``path``.

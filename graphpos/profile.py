@@ -165,7 +165,7 @@ class SensorProfile:
         return cls(**{k: v for k, v in data.items() if k in known})
 
     def save(self, path: str | os.PathLike) -> None:
-        from graphpos.io.files import atomic_output
+        from graphpos.io.outputs import atomic_output
 
         with atomic_output(path) as f:
             f.write((json.dumps(self.to_dict(), indent=1) + "\n").encode())

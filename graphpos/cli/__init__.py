@@ -31,7 +31,23 @@ _COMMAND_MODULES = (
 
 class _Parser(argparse.ArgumentParser):
     def error(self, message: str) -> None:  # one line, status 2
-        self.exit(2, f"{self.prog}: error: {message}\n")
+        self.exit(2, f"{self.prog}: error: {one_line(message)}\n")
+
+
+def one_line(text: str) -> str:
+    """``text`` with every character that is not printable (newline, tab, escape, a byte of a file
+    name that is not UTF-8) shown escaped as ``repr`` shows it, so that a message stays one line."""
+    return "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+
+
+def error_line(command: str, message: str) -> str:
+    """The one line a command prints on stderr for an error."""
+    return f"graphpos {command}: error: {one_line(message)}"
+
+
+def warning_line(command: str, message: str) -> str:
+    """The line a command prints on stderr for a warning (e.g. a drive check, :mod:`graphpos.io.checks`)."""
+    return f"graphpos {command}: warning: {one_line(message)}"
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -49,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except GraphposError as exc:
-        print(f"graphpos {args.command}: error: {exc}", file=sys.stderr)
+        print(error_line(args.command, str(exc)), file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"graphpos {args.command}: interrupted", file=sys.stderr)

@@ -15,6 +15,8 @@ import argparse
 import math
 from pathlib import Path
 
+from graphpos.cli import one_line
+
 
 def register(sub) -> None:
     p = sub.add_parser("calibrate", help="find a drive's sensor profile (biases, scales, noise) without its truth",
@@ -50,8 +52,10 @@ def _calibrate(args: argparse.Namespace) -> int:
     from graphpos.errors import EstimationError, naming_file
     from graphpos.graph import ESTIMATORS
     from graphpos.io import read_drive
+    from graphpos.io.outputs import check_output_file
     from graphpos.profile import SensorProfile
 
+    check_output_file(args.output)
     pose = initial_pose(args)
     drive = read_drive(args.drive)
     with naming_file(args.drive):
@@ -62,7 +66,7 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise EstimationError(f"{args.drive}: no profile found: {est.diagnostics.get('not_started', 'the drive has no odometry to calibrate')}")
     found = SensorProfile.from_dict(est.diagnostics["profile"])
     found.save(args.output)
-    print(f"wrote {args.output}: gyro bias {math.degrees(found.gyro_bias_radps):+.3f} deg/s, yaw-rate scale {found.yaw_rate_scale:.4f}, "
+    print(f"wrote {one_line(str(args.output))}: gyro bias {math.degrees(found.gyro_bias_radps):+.3f} deg/s, yaw-rate scale {found.yaw_rate_scale:.4f}, "
           f"wheel scale {found.wheel_scale:.4f}, range scale {found.range_scale:.4f}, offset {found.range_offset_m:+.3f} m, "
           f"range sigma {'-' if found.range_sigma0_m is None else format(found.range_sigma0_m, '.3f')} m")
     return 0

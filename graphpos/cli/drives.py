@@ -1,4 +1,4 @@
-"""Commands ``info``, ``import plaza`` and ``import mrclam`` (drive files, ``graphpos.io``)."""
+"""Commands ``info`` and ``import plaza|mrclam|rosbag|csv`` (drive files, ``graphpos.io``)."""
 
 from __future__ import annotations
 
@@ -10,16 +10,22 @@ from typing import Any
 
 import numpy as np
 
+from graphpos.cli import one_line, warning_line
+
 
 def register(sub) -> None:
     p = sub.add_parser("info", help="summarise a drive file",
                        description="Channels (rows, rate, time span), tags and layouts, RSUs, windows, origin, "
                                    "parameters and stored estimates of a drive MCAP file. rate_hz counts distinct "
-                                   "timestamps per second: (distinct times - 1) / (last - first).")
+                                   "timestamps per second: (distinct times - 1) / (last - first). The checks "
+                                   "section lists every rule of what is refused (error: run and evaluate refuse "
+                                   "the drive, and info exits with status 2 after printing) and what is warned "
+                                   "about (warning: said on stderr).")
     p.add_argument("file", type=Path, metavar="FILE.mcap", help="drive file")
     p.add_argument("--json", action="store_true",
                    help="print JSON: duration_s, channels {name: {count, rate_hz, start_s, end_s}}, "
-                        "tags {count, layouts}, rsus, windows, origin, params, estimates, and with truth "
+                        "tags {count, layouts}, rsus, windows, origin, params, estimates, checks [{name, level, "
+                        "rule, checked, verdict, message}], and with truth "
                         "truth_checks {heading, ranges, odometry, turn}")
     p.set_defaults(func=_info)
 
@@ -48,18 +54,38 @@ def register(sub) -> None:
                    help="geodetic origin of the dataset's x/y frame in degrees (and metres), for map views "
                         "(default: UTIAS, Toronto, approximately)")
     p.set_defaults(func=_import_mrclam)
+    p = formats.add_parser("rosbag", help="a ROS 1 or ROS 2 bag, read through a mapping file",
+                           description="Topics -> channels as the mapping file says (a TOML file; example: "
+                                       "examples/mapping_rosbag.toml; format: graphpos/io/mapping.py). Header "
+                                       "stamps are the measurement times, record times the arrival times.")
+    p.add_argument("source", type=Path, metavar="BAG",
+                   help="a ROS 1 .bag file, or a ROS 2 bag folder (or the .db3/.mcap file in it)")
+    p.add_argument("--mapping", type=Path, required=True, metavar="MAPPING.toml", help="the mapping file")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    p.set_defaults(func=_import_mapped)
+    p = formats.add_parser("csv", help="CSV logs, read through a mapping file",
+                           description="Columns -> channels as the mapping file says (a TOML file; example: "
+                                       "examples/mapping_csv.toml; format: graphpos/io/mapping.py).")
+    p.add_argument("source", type=Path, metavar="DIR", help="the folder holding the CSV files the mapping names")
+    p.add_argument("--mapping", type=Path, required=True, metavar="MAPPING.toml", help="the mapping file")
+    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    p.set_defaults(func=_import_mapped)
 
 
 def _origin(text: str):
     from graphpos.drive import GeoOrigin
+    from graphpos.errors import DriveError
 
     try:
         values = [float(v) for v in text.split(",")]
     except ValueError:
         values = []
-    if len(values) not in (2, 3) or not all(np.isfinite(values)) or abs(values[0]) > 90 or abs(values[1]) > 180:
+    if len(values) not in (2, 3):
         raise argparse.ArgumentTypeError(f"expected LAT,LON[,ALT] in degrees (and metres), got '{text}'")
-    return GeoOrigin(*values)
+    try:
+        return GeoOrigin(*values)  # checked against graphpos.drive.ORIGIN_SPECS
+    except DriveError as exc:
+        raise argparse.ArgumentTypeError(f"expected LAT,LON[,ALT] in degrees (and metres), got '{text}': {exc.reason}") from None
 
 
 def _rate_hz(t_s: np.ndarray) -> float | None:
@@ -72,11 +98,13 @@ def _rate_hz(t_s: np.ndarray) -> float | None:
 def drive_summary(path: Path) -> dict[str, Any]:
     """What ``info --json`` prints for a drive file.
 
-    With a ``truth`` channel it has ``truth_checks``: the drive's sensors and
-    truth checked against each other (:func:`graphpos.io.checks.truth_checks`).
+    ``checks``: the drive against every rule of what is refused and what is
+    warned about (:func:`graphpos.io.checks.drive_checks`). With a
+    ``truth`` channel it has ``truth_checks``: the drive's sensors and truth
+    checked against each other (:func:`graphpos.io.checks.truth_checks`).
     """
     from graphpos.io import read_mcap
-    from graphpos.io.checks import truth_checks
+    from graphpos.io.checks import drive_checks, truth_checks
 
     drive, estimates = read_mcap(path)
     channels = {
@@ -101,6 +129,7 @@ def drive_summary(path: Path) -> dict[str, Any]:
         "origin": {"lat_deg": drive.origin.lat_deg, "lon_deg": drive.origin.lon_deg, "alt_m": drive.origin.alt_m},
         "params": drive.params,
         "estimates": {e.name: {"count": len(e), "rate_hz": e.rate_hz if np.isfinite(e.rate_hz) else None} for e in estimates},
+        "checks": drive_checks(drive),
     }
     checks = truth_checks(drive)
     if checks:
@@ -113,10 +142,19 @@ def _num(value: float | None, fmt: str) -> str:
 
 
 def _info(args: argparse.Namespace) -> int:
+    from graphpos.io.checks import require_usable
+
     info = drive_summary(args.file)
     if args.json:
         print(json.dumps(info, indent=1))
-        return 0
+    else:
+        _print_info(info)
+    for line in require_usable(info["checks"], str(args.file)):
+        print(warning_line("info", line), file=sys.stderr)
+    return 0
+
+
+def _print_info(info: dict[str, Any]) -> None:
     print(f"drive     {info['name']}  ({info['file']})")
     print(f"duration  {info['duration_s']:.3f} s  ({info['start_s']:.3f} .. {info['end_s']:.3f} s)")
     print(f"{'channel':<10}{'rows':>9}{'rate_hz':>10}{'start_s':>13}{'end_s':>13}")
@@ -133,23 +171,28 @@ def _info(args: argparse.Namespace) -> int:
     print(f"params    {json.dumps(info['params'])}")
     if info["estimates"]:
         print("estimates " + ", ".join(f"{k} ({v['count']} rows)" for k, v in info["estimates"].items()))
+    print("checks (error: run and evaluate refuse the drive; warning: they say so)")
+    for check in info["checks"]:
+        print(f"  {check['name']:<13}{check['level']:<8}{check['verdict']:<8}{check['checked']:<13}"
+              f"{check['message'] or check['rule']}")
     if info.get("truth_checks"):
         from graphpos.io.checks import describe_check
 
         print("truth checks (sensors and truth against each other)")
         for name, check in info["truth_checks"].items():
             print(f"  {name:<10}{check['verdict']}: {describe_check(name, check)}")
-    return 0
 
 
 def _import_plaza(args: argparse.Namespace) -> int:
     from graphpos.io import write_drive
+    from graphpos.io.outputs import check_output_file
     from graphpos.io.plaza import import_plaza
 
+    check_output_file(args.output)
     drive = import_plaza(args.file) if args.origin is None else import_plaza(args.file, origin=args.origin)
     write_drive(args.output, drive)
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
-    print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} beacons ({counts})")
+    print(f"wrote {one_line(str(args.output))}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} beacons ({counts})")
     for note in drive.params.get("import_notes", []):
         print(f"graphpos import: warning: {note}", file=sys.stderr)
     return 0
@@ -158,7 +201,9 @@ def _import_plaza(args: argparse.Namespace) -> int:
 def _import_mrclam(args: argparse.Namespace) -> int:
     from graphpos.io import write_drive
     from graphpos.io.mrclam import import_mrclam
+    from graphpos.io.outputs import check_output_file
 
+    check_output_file(args.output)
     if args.origin is None:
         drive = import_mrclam(args.directory, args.robot)
     else:
@@ -169,5 +214,25 @@ def _import_mrclam(args: argparse.Namespace) -> int:
     dropped = (f"dropped {p['sightings_of_robots_dropped']} robot sightings, "
                f"{p['sightings_of_unknown_barcodes_dropped'] + p['sightings_of_unsurveyed_subjects_dropped']} "
                f"unknown, {p['odometry_repeated_stamps_dropped']} repeated odometry stamps")
-    print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} landmarks ({counts}); {dropped}")
+    print(f"wrote {one_line(str(args.output))}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} landmarks ({counts}); {dropped}")
+    return 0
+
+
+def _import_mapped(args: argparse.Namespace) -> int:
+    """``import rosbag`` and ``import csv``: a recording read through a mapping file."""
+    from graphpos.io import write_drive
+    from graphpos.io.outputs import check_output_file
+
+    if args.import_format == "rosbag":
+        from graphpos.io.rosbag import import_rosbag as read
+    else:
+        from graphpos.io.csvlog import import_csv as read
+    check_output_file(args.output)
+    drive = read(args.source, args.mapping)
+    write_drive(args.output, drive)
+    counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
+    print(f"wrote {one_line(str(args.output))}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} tags, "
+          f"{len(drive.rsus)} RSUs ({counts})")
+    for note in drive.params.get("import_notes", []):
+        print(warning_line("import", note), file=sys.stderr)
     return 0

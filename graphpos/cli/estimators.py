@@ -3,29 +3,45 @@
 ``graphpos run DRIVE.mcap -e NAME [-e NAME ...] [--layout L] [--range-model F] [--initial-pose E,N,YAW_DEG] --out-dir DIR``
 writes into DIR:
 
-- ``NAME.csv`` per estimator (:data:`graphpos.estimate.CSV_COLUMNS`, empty
-  cells where the estimator does not estimate a quantity; only the header
-  when it never started: no start pose given and none found in the drive);
+- ``NAME.csv`` per estimator that finished (:data:`graphpos.estimate.CSV_COLUMNS`,
+  empty cells where the estimator does not estimate a quantity; only the
+  header when it never started: no start pose given and none found in the
+  drive);
 - ``truth.csv``: the drive's truth at its own rate, same columns (when the
   drive has truth);
-- ``run.json``: the start pose given, and each estimator's wall time, output
-  rate, where it started (``start``, or ``not_started``) and diagnostics;
+- ``run.json``: the start pose given, ``failed`` (the estimators that
+  raised) and per estimator its ``status`` (``ok`` or ``failed``), settings
+  and config, and when it finished its wall time, output rate, where it
+  started (``start``, or ``not_started``) and diagnostics, when it failed
+  its ``error`` (and the ``traceback`` of an internal error);
 - ``estimates.mcap``: the drive with every estimate, for Foxglove.
 
 The estimators see the drive without its truth (truth is for scoring only,
-issue 13: :meth:`graphpos.drive.Drive.without_truth`). Every estimator runs
-before anything is written, and each file is written through a temporary
-file and a rename, so a bad input leaves no output.
+issue 13: :meth:`graphpos.drive.Drive.without_truth`). An estimator
+lacking a channel it needs refuses the drive before any estimator runs
+(status 2, nothing written). One estimator's failure while it runs does not
+cost the others their results: each failure is one line on
+stderr naming the estimator and the reason, the others' files are written,
+and the status is 1. When every estimator fails nothing is written (status
+2, or 1 when an internal error was among the failures).
+
+The output folder is checked before the drive is read and written by
+:func:`graphpos.io.outputs.output_folder`: complete or absent, an earlier
+output of graphpos replaced, a folder holding other files refused.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
+import sys
+import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from graphpos.errors import ConfigError, FileFormatError, naming_file
+from graphpos.cli import error_line, one_line, warning_line
+from graphpos.errors import ConfigError, GraphposError, naming_file
 from graphpos.estimate import Estimate
 
 if TYPE_CHECKING:
@@ -49,7 +65,9 @@ def register(sub) -> None:
     p.add_argument("--layout", metavar="L", help="use only the tags of this named layout (e.g. optimized)")
     p.add_argument("--range-model", type=Path, metavar="F",
                    help="range model JSON (from `graphpos ranging fit`); default: the drive's default model")
-    p.add_argument("--out-dir", type=Path, required=True, metavar="DIR", help="output folder (created if absent)")
+    p.add_argument("--out-dir", type=Path, required=True, metavar="DIR",
+                   help="output folder (created if absent; an earlier output of graphpos there is replaced, a folder "
+                        "holding other files refused)")
     add_settings_options(p)
     add_initial_pose_option(p)
     from graphpos.cli.calibrate import add_profile_option
@@ -108,8 +126,6 @@ def estimator_settings(args: argparse.Namespace, names: list[str]) -> dict[str, 
 
 
 def _estimators(args: argparse.Namespace) -> int:
-    import dataclasses
-
     from graphpos.registry import estimator_classes
     from graphpos.settings import config_dict
 
@@ -141,35 +157,106 @@ def truth_estimate(drive) -> Estimate:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from graphpos.io import read_drive, write_drive
-    from graphpos.io.exports import csv_text, write_atomically
+    from graphpos.io import read_drive
+    from graphpos.io.checks import drive_checks, require_usable
+    from graphpos.io.outputs import check_output_folder, output_folder, safe_name
     from graphpos.ranging import load_range_model
-    from graphpos.registry import make_estimator, start_pose_record
-    from graphpos.settings import config_dict
+    from graphpos.registry import make_estimator
 
     names = list(dict.fromkeys(args.estimators))
     if "truth" in names:
         raise ConfigError("'truth' is not an estimator name (truth.csv is always written)")
-    if args.out_dir.exists() and not args.out_dir.is_dir():
-        raise FileFormatError(f"{args.out_dir}: exists and is not a folder")
-    settings = estimator_settings(args, names)  # before reading a long drive
+    check_output_folder(args.out_dir)  # before reading a long drive
+    settings = estimator_settings(args, names)
     pose = initial_pose(args)
     drive = read_drive(args.drive)
+    drive_warnings = require_usable(drive_checks(drive), str(args.drive))  # a nonsense drive: refused here
     range_model = load_range_model(args.range_model) if args.range_model else None
     from graphpos.cli.calibrate import profile as profile_of
 
     sensor_profile = profile_of(args)
     estimators = [make_estimator(n, settings=settings.get(n), layout=args.layout, range_model=range_model, initial_pose=pose,
                                  profile=sensor_profile) for n in names]
+    blind = drive.without_truth()  # truth is for scoring only (issue 13)
     with naming_file(args.drive):
         if args.layout:
             drive.tags.layout(args.layout)  # a clear error for an unknown layout
-        blind = drive.without_truth()  # truth is for scoring only (issue 13)
-        estimates = [est.run(blind) for est in estimators]
+        for est in estimators:
+            est.check(blind)  # an estimator the drive lacks channels for: refused before any runs
+    outcomes = {est.name: _run_one(est, blind, args.drive) for est in estimators}
+    failed = {name: o for name, o in outcomes.items() if not isinstance(o, Estimate)}
+    for name, failure in failed.items():
+        print(error_line("run", f"{name} failed: {failure.error}"), file=sys.stderr)
+    if len(failed) == len(outcomes):  # nothing to write
+        return 2 if all(f.traceback is None for f in failed.values()) else 1
+    with output_folder(args.out_dir, "run.json") as folder:
+        _write_run(folder, args, drive, estimators, outcomes, settings, pose, sensor_profile, drive_warnings)
+    for e in outcomes.values():
+        if isinstance(e, Estimate):
+            note = "  (not started: no start pose)" if e.diagnostics.get("not_started") else ""
+            csv = one_line(str(args.out_dir / f"{safe_name(e.name)}.csv"))
+            print(f"{e.name:<18} {len(e):6d} outputs  {e.wall_time_s:7.3f} s  -> {csv}{note}")
+    for line in drive_warnings:  # last, so that a refusal stays one line
+        print(warning_line("run", line), file=sys.stderr)
+    return 1 if failed else 0
 
-    outputs: dict[str, str] = {f"{e.name}.csv": csv_text(e) for e in estimates}
+
+@dataclasses.dataclass
+class Failure:
+    """An estimator that raised: the one-line reason, and the traceback when it was a bug."""
+
+    error: str
+    traceback: str | None = None
+
+
+def _run_one(est, drive, source: Path) -> "Estimate | Failure":
+    """``est.run(drive)``, or what went wrong (never raises but for an interrupt)."""
+    try:
+        with naming_file(source):
+            return est.run(drive)
+    except GraphposError as exc:
+        return Failure(str(exc))
+    except Exception as exc:  # a bug in one estimator must not cost the others their results
+        where = traceback.extract_tb(exc.__traceback__)[-1]
+        return Failure(f"{type(exc).__name__}: {exc} (internal error at {Path(where.filename).name}:{where.lineno})",
+                       traceback.format_exc())
+
+
+def _write_run(folder: Path, args: argparse.Namespace, drive, estimators, outcomes, settings, pose, sensor_profile,
+               drive_warnings: list[str]) -> None:
+    """The files of ``run`` (module docstring) into ``folder``; ``drive_warnings``: the drive's broken
+    warning rules (:func:`graphpos.io.checks.require_usable`)."""
+    from graphpos.io import write_drive
+    from graphpos.io.exports import csv_text, write_atomically
+    from graphpos.io.outputs import safe_name
+    from graphpos.registry import start_pose_record
+    from graphpos.settings import config_dict
+
+    estimates = [e for e in outcomes.values() if isinstance(e, Estimate)]
+    write_drive(folder / "estimates.mcap", drive, estimates=estimates)
+    for e in estimates:
+        write_atomically(folder / f"{safe_name(e.name)}.csv", csv_text(e))
     if drive.has("truth"):
-        outputs["truth.csv"] = csv_text(truth_estimate(drive))
+        write_atomically(folder / "truth.csv", csv_text(truth_estimate(drive)))
+    records = {}
+    for est in estimators:
+        e = outcomes[est.name]
+        common = {"settings": settings.get(est.name, {}), "config": config_dict(est.config)}
+        if isinstance(e, Failure):
+            records[est.name] = {"status": "failed", "error": e.error, "traceback": e.traceback, **common}
+            continue
+        records[est.name] = {
+            "status": "ok",
+            "start": e.diagnostics.get("start"),
+            "not_started": e.diagnostics.get("not_started"),
+            "wall_time_s": e.wall_time_s,
+            "realtime_factor": drive.duration_s / e.wall_time_s if e.wall_time_s > 0 else None,
+            "outputs": len(e),
+            "rate_hz": e.rate_hz if e.rate_hz == e.rate_hz else None,
+            "has_velocity": e.has_velocity,
+            **common,
+            "diagnostics": e.diagnostics,
+        }
     summary = {
         "drive": str(args.drive),
         "drive_name": drive.name,
@@ -177,28 +264,8 @@ def _run(args: argparse.Namespace) -> int:
         "range_model": str(args.range_model) if args.range_model else None,
         "initial_pose": start_pose_record(pose),
         "profile": sensor_profile.to_dict() if sensor_profile is not None else None,
-        "estimators": {
-            e.name: {
-                "start": e.diagnostics.get("start"),
-                "not_started": e.diagnostics.get("not_started"),
-                "wall_time_s": e.wall_time_s,
-                "realtime_factor": drive.duration_s / e.wall_time_s if e.wall_time_s > 0 else None,
-                "outputs": len(e),
-                "rate_hz": e.rate_hz if e.rate_hz == e.rate_hz else None,
-                "has_velocity": e.has_velocity,
-                "settings": settings.get(e.name, {}),
-                "config": config_dict(est.config),
-                "diagnostics": e.diagnostics,
-            }
-            for est, e in zip(estimators, estimates)
-        },
+        "failed": [name for name, e in outcomes.items() if isinstance(e, Failure)],
+        "drive_warnings": drive_warnings,
+        "estimators": records,
     }
-    outputs["run.json"] = json.dumps(summary, indent=1, default=float)
-    args.out_dir.mkdir(parents=True, exist_ok=True)
-    write_drive(args.out_dir / "estimates.mcap", drive, estimates=estimates)
-    for fname, text in outputs.items():
-        write_atomically(args.out_dir / fname, text)
-    for e in estimates:
-        note = "  (not started: no start pose)" if e.diagnostics.get("not_started") else ""
-        print(f"{e.name:<18} {len(e):6d} outputs  {e.wall_time_s:7.3f} s  -> {args.out_dir / (e.name + '.csv')}{note}")
-    return 0
+    write_atomically(folder / "run.json", json.dumps(summary, indent=1, default=float))

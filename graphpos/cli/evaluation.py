@@ -6,7 +6,11 @@ scores them (issue 13). A run that fails (an estimator not available, or one
 that raises on a drive) is reported in its table cell and in
 ``results.json``; the command then prints a summary of the failures on
 stderr and exits with status 1. User mistakes (bad options, a bad
-``--initial-pose``, a drive without truth) exit with status 2.
+``--initial-pose``, a drive without truth, an output folder that cannot be
+written) exit with status 2. The output folder is checked before any work
+and written by :func:`graphpos.io.outputs.output_folder`: complete or
+absent, an earlier output of graphpos replaced, a folder holding other files
+refused.
 """
 
 from __future__ import annotations
@@ -16,11 +20,14 @@ import sys
 import time
 from pathlib import Path
 
+from graphpos.cli import one_line, warning_line
 from graphpos.cli.estimators import add_initial_pose_option, add_settings_options, estimator_settings, initial_pose
 
 
 def _add_execution_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-o", "--output", required=True, type=Path, help="output folder (created)")
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output folder (created; an earlier output of graphpos there is replaced, a folder "
+                        "holding other files refused)")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run on a Dask cluster, e.g. tcp://host:8786, instead of the local pool")
@@ -72,39 +79,49 @@ def _names(values: list[str]) -> list[str]:
 def _finish(outcome, started: float, command: str) -> int:
     failed = outcome.failures
     took = time.perf_counter() - started
-    print(f"{command}: wrote {outcome.folder}/report.md, report.html, results.json in {took:.1f} s")
+    print(f"{command}: wrote {one_line(str(outcome.folder))}/report.md, report.html, results.json in {took:.1f} s")
     if failed:
         print(f"{command}: {len(failed)} of {len(outcome.results)} runs failed:", file=sys.stderr)
         for r in failed:
             where = r.drive_name or "?"
-            print(f"  {r.job.estimator} on {where}: {r.error}", file=sys.stderr)
+            print(one_line(f"  {r.job.estimator} on {where}: {r.error}"), file=sys.stderr)
         return 1
     return 0
 
 
 def _evaluate(args) -> int:
     from eval.evaluate import evaluate, file_sources
-    from graphpos.errors import ConfigError
+    from graphpos.io.checks import drive_checks, require_usable
+    from graphpos.io.outputs import check_output_folder
+    from graphpos.ranging import load_range_model
 
     started = time.perf_counter()
+    check_output_folder(args.output)
     names = _names(args.estimators)
     settings = estimator_settings(args, names)
     from graphpos.cli.calibrate import profile as profile_of
 
     pose = initial_pose(args)
-    if args.range_model is not None and not Path(args.range_model).is_file():
-        raise ConfigError(f"range model file {args.range_model} does not exist")
+    if args.range_model is not None:
+        load_range_model(args.range_model)  # a bad file is its one-line error here, not in every worker
     drives = file_sources(args.drives)
+    # a nonsense drive is refused here, before any work; warnings are said last, so that a refusal stays one line
+    drive_warnings = [line for path, (_, drive) in zip(args.drives, drives) for line in require_usable(drive_checks(drive), path)]
     outcome = evaluate(drives, names, args.output, layout=args.layout, range_model=args.range_model,
                        workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress, settings=settings,
                        initial_pose=pose, profile=profile_of(args))
-    return _finish(outcome, started, "evaluate")
+    status = _finish(outcome, started, "evaluate")
+    for line in drive_warnings:
+        print(warning_line("evaluate", line), file=sys.stderr)
+    return status
 
 
 def _reproduce(args) -> int:
     from eval.reproduce import reproduce
+    from graphpos.io.outputs import check_output_folder
 
     started = time.perf_counter()
+    check_output_folder(args.output)
     outcome = reproduce(args.output, quick=args.quick, seeds=args.seeds, plaza=args.plaza,
                         workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
     return _finish(outcome, started, "reproduce")
@@ -112,8 +129,10 @@ def _reproduce(args) -> int:
 
 def _layout_study(args) -> int:
     from eval.layout_study import layout_study
+    from graphpos.io.outputs import check_output_folder
 
     started = time.perf_counter()
+    check_output_folder(args.output)
     outcome = layout_study(args.scenario, args.output, seeds=args.seeds,
                            estimators=_names(args.estimators) if args.estimators else None,
                            workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)

@@ -19,7 +19,9 @@ def register(sub) -> None:
     p.add_argument("--seeds", type=int, default=None, help="seeded drives (default 3, quick 1)")
     p.add_argument("--quick", action="store_true", help="one seed")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="drive length (default: one pass)")
-    p.add_argument("-o", "--output", required=True, type=Path, help="output folder (created)")
+    p.add_argument("-o", "--output", required=True, type=Path,
+                   help="output folder (created; an earlier output of graphpos there is replaced, a folder "
+                        "holding other files refused)")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_fault_study)
@@ -27,13 +29,12 @@ def register(sub) -> None:
 
 def _fault_study(args) -> int:
     from eval.faults import DEFAULT_SCENARIO, fault_study, write_study
+    from graphpos.cli import one_line
     from graphpos.errors import ConfigError
+    from graphpos.io.outputs import check_output_folder
 
     started = time.perf_counter()
-    if args.output.exists() and not args.output.is_dir():
-        raise ConfigError(f"output {args.output} exists and is not a folder")
-    if not args.output.resolve().parent.is_dir():
-        raise ConfigError(f"cannot write {args.output}: folder {args.output.resolve().parent} does not exist")
+    check_output_folder(args.output, parents=False)
     if args.duration is not None and not args.duration > 0:
         raise ConfigError(f"--duration must be positive, got {args.duration}")
     names = [n.strip() for v in args.estimators or [] for n in v.split(",") if n.strip()] or None
@@ -41,11 +42,11 @@ def _fault_study(args) -> int:
     study = fault_study(args.scenario or DEFAULT_SCENARIO, names, seeds=seeds, duration_s=args.duration,
                         workers=args.workers, progress=not args.no_progress)
     folder = write_study(study, args.output)
-    print(f"fault-study: wrote {folder}/report.md, report.html, results.json, fault_errors.png "
+    print(f"fault-study: wrote {one_line(str(folder))}/report.md, report.html, results.json, fault_errors.png "
           f"in {time.perf_counter() - started:.1f} s")
     if study.failures:
         print(f"fault-study: {len(study.failures)} runs raised:", file=sys.stderr)
         for fault, est, error in study.failures:
-            print(f"  {est} with {fault}: {error}", file=sys.stderr)
+            print(one_line(f"  {est} with {fault}: {error}"), file=sys.stderr)
         return 1
     return 0

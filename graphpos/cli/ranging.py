@@ -8,7 +8,9 @@ from pathlib import Path
 
 import numpy as np
 
+from graphpos.cli import one_line
 from graphpos.errors import ConfigError, naming_file
+from graphpos.io.outputs import check_output_file
 
 
 def register(sub) -> None:
@@ -62,8 +64,8 @@ def _table1(args: argparse.Namespace) -> int:
     seed = CALIBRATION_SEED if args.seed is None else args.seed
     if seed < 0:
         raise ConfigError(f"--seed must be non-negative, got {seed}")
-    if args.plot is not None and not args.plot.parent.is_dir():
-        raise ConfigError(f"{args.plot.parent}: no such folder for the figure")
+    if args.plot is not None:
+        check_output_file(args.plot)
     figures = table1(seed)
     print(json.dumps(figures, indent=1) if args.json else format_table1(figures, seed))
     if args.plot is not None:
@@ -85,8 +87,7 @@ def _fit(args: argparse.Namespace) -> int:
 
     if not args.truth:
         raise ConfigError("a range model is fitted to true distances: pass --truth to fit against the drive's truth")
-    if not args.output.parent.is_dir():
-        raise ConfigError(f"{args.output.parent}: no such folder for the model file")
+    check_output_file(args.output)
     drive = read_drive(args.drive)
     with naming_file(args.drive):
         model = fit_from_drive(drive, args.kind)
@@ -99,7 +100,7 @@ def _fit(args: argparse.Namespace) -> int:
         print(f"  reported range - true range: {_error_figures(reading, true_m)}")
     print(f"  fitted range - true range (in-sample): {_error_figures(model.predict_distance_m(reading), true_m)}")
     model.save(args.output)
-    print(f"wrote {args.output}")
+    print(f"wrote {one_line(str(args.output))}")
     return 0
 
 

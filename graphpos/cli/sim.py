@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 from pathlib import Path
 
-from graphpos.errors import ConfigError, FileFormatError, naming_file
+from graphpos.cli import one_line
+from graphpos.errors import ConfigError, naming_file
 from graphpos.sim.faults import FAULTS
 from graphpos.sim.params import PROFILES
 
@@ -101,17 +101,12 @@ def parse_fault(text: str) -> tuple[str, dict[str, float | str]]:
 
 def _simulate(args: argparse.Namespace) -> int:
     from graphpos.io import write_drive
+    from graphpos.io.outputs import check_output_file
     from graphpos.sim import SCENARIOS, load_config, simulate
     from graphpos.sim.faults import check_faults
     from graphpos.sim.params import resolve_params
 
-    folder = args.output.resolve().parent
-    if not folder.is_dir():
-        raise FileFormatError(f"{args.output}: cannot write (folder {folder} does not exist)")
-    if not os.access(folder, os.W_OK):
-        raise FileFormatError(f"{args.output}: cannot write (folder {folder} is not writable)")
-    if args.output.is_dir():
-        raise FileFormatError(f"{args.output}: is a folder, not a file")
+    check_output_file(args.output)
     overrides = load_config(args.config) if args.config is not None else {}
     faults = overrides.pop("faults", {})
     if not isinstance(faults, dict):
@@ -130,5 +125,5 @@ def _simulate(args: argparse.Namespace) -> int:
                      overrides=overrides, rfid_latency_s=latency, faults=faults or None, profile=args.profile)
     write_drive(args.output, drive)
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
-    print(f"wrote {args.output}: {drive.name}, {drive.duration_s:.1f} s ({counts})")
+    print(f"wrote {one_line(str(args.output))}: {drive.name}, {drive.duration_s:.1f} s ({counts})")
     return 0

@@ -1,16 +1,17 @@
 """Turns a measurement stream into keyframes and GTSAM factors.
 
-Keyframes are laid on a regular grid ``t_k = t_0 + k / rate`` starting at the
-first measurement. Keyframe ``k`` is closed when a measurement arrives after
-``t_k``: the wheel/gyro (and IMU) samples up to ``t_k`` are preintegrated into
+Keyframes are laid on a regular grid ``t_k = t_0 + k / rate`` from the first
+odometry sample of the track (see Gaps below). Keyframe ``k`` is closed when
+a measurement arrives after ``t_k``: the wheel/gyro (and IMU) samples up to ``t_k`` are preintegrated into
 the odometry factors between ``k - 1`` and ``k``. Every absolute measurement
 (tag/RSU range, RSU/GNSS fix, compass yaw) is attached to the keyframe
 nearest its own timestamp ``t_s`` — also when it arrives late: a reading for
 a keyframe already in the graph goes into the next update, up to
-``max_delay_s`` late (issue 6, item 4).
+``max_delay_s`` late (issue 6, item 4); later ones are dropped and counted
+per channel (``diagnostics["late_dropped"]``).
 
 Start-up (the shared :mod:`graphpos.ignition`): with a start pose from the
-user, keyframe 0 gets a prior with the user's sigmas. Otherwise keyframes
+user, the drive's first keyframe gets a prior with the user's sigmas. Otherwise keyframes
 are held back (no output) and every measurement also goes to ignition,
 which solves the start from fixes or ranges with the dead-reckoned motion;
 when it gives a start state, the held track is moved rigidly (turned and
@@ -19,6 +20,28 @@ keyframe of the start, wide (three times ignition's sigmas: the readings
 ignition used are in the graph too) but enough to keep the system
 determinate whatever the readings (never IndeterminantLinearSystem). A
 drive on which ignition never succeeds gives no output.
+
+Gaps (issue 14, item 3): the odometry is the graph's backbone. A wheel
+speed or yaw rate is held (zero-order hold) for at most
+``config.max_odometry_gap_s``; keyframes are closed only while every
+odometry sensor of the drive is held, so a reading arriving much later
+than the odometry (500 s late) no longer conjures keyframes out of
+nothing. When a sensor has been silent for longer, the track ends: its
+last keyframes are in the graph, readings until the odometry is back are
+dropped (``diagnostics["without_odometry"]``), and once every odometry
+sensor is back a new track segment starts exactly as the drive did, from a
+fresh ignition and its own wide start prior. Nothing ties it to the track
+before the gap: over an unobserved minute the vehicle may have gone
+anywhere, and a between factor wide enough to say so adds no information,
+while one narrow enough to matter would make the covariance lie. Each gap
+is listed in ``diagnostics["odometry_gaps"]``. A segment on which ignition
+never succeeds leaves nothing in the graph. An accelerometer gap (a
+non-finite sample) is held the same way; beyond the hold the inertial
+graph integrates zero body acceleration with a wide noise density
+(:attr:`~graphpos.graph.models.InertialModel.UNMEASURED_ACCEL_DENSITY`), so
+the wheel factor carries the velocity until the accelerometers are back.
+Non-finite samples of any sensor are skipped and counted per channel and
+field (``diagnostics["non_finite"]``).
 """
 
 from __future__ import annotations
@@ -34,8 +57,9 @@ from graphpos.drive import Channel, Drive, Measurement
 from graphpos.graph.config import GraphConfig
 from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState
 from graphpos.profile import SensorProfile
-from graphpos.graph.models import KeyframeState, robust
+from graphpos.graph.models import GRAVITY_MPS2, KeyframeState, robust
 from graphpos.graph.odometry import OdometryDelta, PlanarOdometry
+from graphpos.ranging.drive_models import ranges_by_field
 
 #: A landmark key is reused for sightings at most this far apart, s.
 LANDMARK_LIFETIME_S = 3.0
@@ -46,11 +70,19 @@ START_PRIOR_INFLATION = 3.0
 #: and the graph resolves the heading from every range it holds. On the slow
 #: MRCLAM robots, 5 degrees took 100-400 s of driving (10 degrees: robot 1 still 386 s).
 START_MAX_YAW_SIGMA_RAD = math.radians(15.0)
+#: The odometry sensors: (channel, field) pairs whose silence ends the track.
+ODOMETRY_SENSORS = (("imu", "yaw_rate_radps"), ("wheel", "speed_mps"))
+#: The fields each absolute channel's factors read (checked for finite values).
+ABSOLUTE_FIELDS = {"compass": ("yaw_rad",), "gnss": ("east_m", "north_m", "sigma_m"), "rsu": ("sigma_m",)}
 
 
 @dataclass
 class Increment:
-    """What one closed keyframe adds to the smoother."""
+    """What one closed keyframe adds to the smoother.
+
+    ``late``: no new keyframe, only the factors of late readings for
+    keyframes already in the smoother (of a track that has ended).
+    """
 
     keyframe: int
     t_s: float
@@ -59,22 +91,41 @@ class Increment:
     timestamps: dict[int, float] = field(default_factory=dict)
     released: list[int] = field(default_factory=list)  # keyframes entering the smoother now
     anchoring: bool = False  # first information of the trajectory: iterate more
+    late: bool = False
 
 
 @dataclass
 class RangeRecord:
     """A range factor's ingredients, kept to rebuild it with another range scale or sigma.
 
-    ``sigma_from_model``: the sigma is the range model's at the estimated
-    distance (tag readings), re-evaluated by :meth:`GraphBuilder.reweight_ranges`;
-    otherwise it came with the reading (RSU ranges).
+    ``field``: the reading field (``range_m`` or ``rss``) whose range
+    model gives the sigma (tag readings), re-evaluated at the estimated
+    distance by :meth:`GraphBuilder.reweight_ranges`; None: the sigma came
+    with the reading (RSU ranges).
     """
 
     keyframe: int
     landmark_key: int
     reading_m: float
     sigma_m: float
-    sigma_from_model: bool = False
+    field: str | None = None
+
+
+@dataclass
+class Segment:
+    """One track: keyframes ``first`` .. ``last`` on the grid from ``t_s`` (the first keyframe's time)."""
+
+    first: int
+    t_s: float
+    last: int
+    history: tuple[int, int, int, int] = (0, 0, 0, 0)  # sizes of the history lists when it began
+
+    def contains(self, k: int) -> bool:
+        return self.first <= k <= self.last
+
+    def nearest(self, t_s: float, period_s: float) -> int:
+        """The keyframe of this track's grid nearest ``t_s``."""
+        return self.first + int(math.floor((t_s - self.t_s) / period_s + 0.5))
 
 
 class GraphBuilder:
@@ -85,9 +136,11 @@ class GraphBuilder:
     config : GraphConfig
     model : PlanarModel or InertialModel
     drive : Drive
-        Maps only (tags, RSUs).
-    range_model : RangeModel
-        RFID reading -> distance and sigma.
+        Maps only (tags, RSUs) and which channels it has.
+    range_models : dict of str to RangeModel
+        The range model of each RFID reading field
+        (:func:`graphpos.ranging.reading_models`), the estimator's first;
+        empty without RFID readings.
     max_delay_s : float
         Latest arrival accepted for a reading of an existing keyframe.
     landmark_lifetime_s : float
@@ -114,7 +167,7 @@ class GraphBuilder:
         config: GraphConfig,
         model,
         drive: Drive,
-        range_model,
+        range_models: dict,
         max_delay_s: float,
         landmark_lifetime_s: float = LANDMARK_LIFETIME_S,
         keep_history: bool = True,
@@ -124,8 +177,9 @@ class GraphBuilder:
     ):
         self.config = config
         self.model = model
-        self.range_model = range_model
+        self.range_models = dict(range_models)
         self.max_delay_s = max_delay_s
+        self.max_gap_s = config.max_odometry_gap_s
         self.landmark_lifetime_s = landmark_lifetime_s
         self.keep_history = keep_history
         self.range_scale = range_scale
@@ -146,23 +200,36 @@ class GraphBuilder:
             has_speed=drive.has("wheel"),
             has_yaw_rate=drive.has("imu"),
         )
-        self.has_compass = drive.has("compass")
-        self.pim = model.new_preintegration(None)
-        self._imu_held: tuple[np.ndarray, np.ndarray] | None = None
+        #: Time of the last finite sample of each odometry sensor the drive has.
+        self._last_sample_s = {sensor: -math.inf for sensor in ODOMETRY_SENSORS if drive.has(sensor[0])}
+        # IMU preintegration (inertial graph): the held specific force and
+        # rate, the samples of the open keyframe interval, the bias to integrate at
+        self._preintegrating = model.name == "inertial"
+        self._accel_mps2: np.ndarray | None = None
+        self._accel_t = -math.inf
+        self._gyro_radps: np.ndarray | None = None
         self._imu_t: float | None = None
-        self.t0: float | None = None
+        self._imu_samples: list[tuple[np.ndarray, np.ndarray, float, bool]] = []
+        self._imu_bias: np.ndarray | None = None
         self.last_keyframe = -1
+        self.segments: list[Segment] = []
+        self.tracking = False
+        self._lost_s: float | None = None  # the last odometry sample of the last track lost
+        #: Some keyframe has entered the smoother (the estimator has output).
+        self.started = False
+        self.anchored = False
         self.states: dict[int, KeyframeState] = {}
         self.speeds: dict[int, float] = {}
-        self._waiting: dict[int, list[tuple]] = {}  # readings for keyframes not closed yet
-        self._ready: list[tuple[int, tuple]] = []  # readings for closed keyframes, next update
+        self._waiting: dict[int, list[tuple[str, tuple]]] = {}  # readings for keyframes not closed yet
+        self._ready: list[tuple[int, str, tuple]] = []  # readings for closed keyframes, next update
         self._landmarks: dict[tuple[str, int], tuple[int, float]] = {}
         self._landmark_count = 0
-        self.anchored = initial_pose is not None
         self._backlog: list[Increment] = []
         self._backlog_landmarks: dict[int, np.ndarray] = {}
-        self.ignition = Ignition(np.column_stack([drive.tags.east_m, drive.tags.north_m]), drive.tags.wall_side, has_wheel=drive.has("wheel"),
-                                 config=IgnitionConfig(compass_sigma_rad=config.compass_sigma_rad, max_yaw_sigma_rad=START_MAX_YAW_SIGMA_RAD))
+        self._ignition_args = dict(tags_en_m=np.column_stack([drive.tags.east_m, drive.tags.north_m]), wall_side=drive.tags.wall_side,
+                                   has_wheel=drive.has("wheel"),
+                                   config=IgnitionConfig(compass_sigma_rad=config.compass_sigma_rad, max_yaw_sigma_rad=START_MAX_YAW_SIGMA_RAD))
+        self.ignition: Ignition | None = None  # a fresh one for each track (_begin_segment)
         self._start: StartState | None = None
         #: Corrections of the incoming yaw rates and wheel speeds learnt online (:meth:`recalibrate`).
         self.corrections = SensorProfile()
@@ -173,107 +240,240 @@ class GraphBuilder:
         self.wheel_scale: float | None = None  # None: wheel factors as built online
         self.wheel_drift_density: float | None = None  # with wheel_scale None: rebuild the drift term at this density
         self.landmark_positions: dict[int, np.ndarray] = {}
-        self.diagnostics = {"late_attached": 0, "late_dropped": 0, "before_odometry": 0, "ranges": 0, "anchor_keyframe": None, "start": None}
+        self.diagnostics = {"late_attached": {}, "late_dropped": {}, "without_odometry": {}, "non_finite": {}, "odometry_gaps": [],
+                            "ranges": 0, "ranges_unusable": 0, "anchor_keyframe": None, "start": None}
         if initial_pose is not None:
             self.diagnostics["start"] = {"source": "user", **initial_pose.to_dict()}
 
+    @property
+    def range_model(self):
+        """The estimator's range model (the first of :attr:`range_models`); None without RFID readings."""
+        return next(iter(self.range_models.values()), None)
+
     # -- time grid ----------------------------------------------------------
     def keyframe_time(self, k: int) -> float:
-        return self.t0 + k * self.period_s
+        seg = next((s for s in reversed(self.segments) if s.first <= k), self.segments[0])
+        return seg.t_s + (k - seg.first) * self.period_s
 
-    def _nearest_keyframe(self, t_s: float) -> int:
-        return int(math.floor((t_s - self.t0) / self.period_s + 0.5))
+    def _keyframe_at(self, t_s: float) -> tuple[Segment, int] | None:
+        """The segment whose grid holds ``t_s`` and its keyframe nearest ``t_s``; None before the first segment."""
+        for seg in reversed(self.segments):
+            if t_s >= seg.t_s - 0.5 * self.period_s:
+                return seg, seg.nearest(t_s, self.period_s)
+        return None
 
     # -- input ----------------------------------------------------------------
     def add(self, m: Measurement) -> list[Increment]:
-        """Take one measurement; return the keyframes it closes.
+        """Take one measurement; return what it completes (closed keyframes, a released track, late readings).
 
-        The keyframe grid starts at the first odometry (wheel or IMU)
-        sample: an absolute reading before it cannot be placed relative to
-        the motion (counted as ``before_odometry`` and dropped).
+        Keyframes up to the measurement's arrival are closed while the
+        odometry covers them (module docstring); a keyframe it no longer
+        covers ends the track. A track begins when every odometry sensor
+        has a fresh sample: at the drive's first odometry, and after each
+        gap. An absolute reading no track covers cannot be placed relative
+        to the motion (counted per channel in ``without_odometry``, dropped).
         """
-        if self.t0 is None:
-            if m.channel not in ("imu", "wheel"):
-                self.diagnostics["before_odometry"] += 1
-                return []
-            self.t0 = m.t_s
-            self.odometry.start(m.t_s)
-            self._imu_t = m.t_s
-        closed = []
-        arrival = m.arrival_s
-        while self.keyframe_time(self.last_keyframe + 1) < arrival - 1e-9:
-            closed.append(self._close(self.last_keyframe + 1, arrival))
-        self._take(m, arrival)
-        return closed
+        out = []
+        if self.tracking:
+            out = self._close_covered(m.arrival_s)
+            if self.keyframe_time(self.last_keyframe + 1) < m.arrival_s - 1e-9:
+                self._lost_s = min(self._last_sample_s.values())
+                out += self._end_segment()
+        if self._note_odometry(m) and not self.tracking and all(m.t_s - t <= self.max_gap_s for t in self._last_sample_s.values()):
+            self._begin_segment(m.t_s)
+        return out + self._take(m)
 
-    def flush(self, end_s: float | None = None) -> list[Increment]:
-        """Close the keyframes up to ``end_s`` (default: the last waiting reading) and release any backlog."""
-        closed = []
+    def flush(self) -> list[Increment]:
+        """The drive has ended: close the keyframes still covered up to the last waiting reading, and end the track."""
+        if not self.tracking:
+            return []
         last = max(self._waiting, default=self.last_keyframe)
-        if end_s is not None:
-            last = max(last, self._nearest_keyframe(end_s))
-        while self.last_keyframe < last or self._ready:
-            k = self.last_keyframe + 1
-            closed.append(self._close(k, self.keyframe_time(k) + 1e-6))
-        if not self.anchored and self._backlog:
-            self._ignite(self.ignition.finish())
-            if self._start is not None:
-                closed.append(self._release(closed[-1] if closed else None, self._move_onto_start(self._start)))
+        return self._close_covered(self.keyframe_time(last) + 1e-6, ended=True) + self._end_segment()
+
+    def _close_covered(self, until_s: float, ended: bool = False) -> list[Increment]:
+        """Close the keyframes before ``until_s`` that every odometry sensor's held sample still covers.
+
+        A sample is held for ``max_gap_s`` while the silence may still turn
+        out shorter; once it is known to be longer (``until_s`` beyond the
+        hold, or the drive has ``ended``), only the keyframes up to the last
+        sample are closed: none is extrapolated past the odometry.
+        """
+        last_s = min(self._last_sample_s.values())
+        hold_s = self.max_gap_s if not ended and until_s - last_s <= self.max_gap_s else 0.5 * self.period_s
+        covered_s = last_s + hold_s + 1e-9
+        closed = []
+        while (t := self.keyframe_time(self.last_keyframe + 1)) < until_s - 1e-9 and t <= covered_s:
+            closed.append(self._close(self.last_keyframe + 1))
         return closed
 
-    def _take(self, m: Measurement, arrival: float) -> None:
+    def _note_odometry(self, m: Measurement) -> bool:
+        """Record the time of an odometry sample's finite fields (counting non-finite ones); whether it had any."""
+        fresh = False
+        for sensor in self._last_sample_s:
+            if sensor[0] == m.channel:
+                if self._finite(m, sensor[1]):
+                    self._last_sample_s[sensor] = m.t_s
+                    fresh = True
+        return fresh
+
+    def _finite(self, m: Measurement, name: str) -> bool:
+        """Whether a field of a measurement is finite; a non-finite one is counted in ``non_finite``."""
+        if math.isfinite(m.values.get(name, math.nan)):
+            return True
+        _count(self.diagnostics["non_finite"], f"{m.channel}.{name}")
+        return False
+
+    def _take(self, m: Measurement) -> list[Increment]:
+        if m.channel == "imu":
+            self._take_imu(m)
+            return []
+        if m.channel == "wheel":
+            if self.tracking:
+                self.odometry.advance(m.t_s)
+            if math.isfinite(m.values["speed_mps"]):
+                speed = m.values["speed_mps"] / self.corrections.wheel_scale
+                self.odometry.set_speed(speed)
+                if self.tracking and not self.anchored:
+                    self._ignite(self.ignition.speed(m.t_s, speed))
+            return []
+        entry = self._entry(m)
+        return [] if entry is None else self._place(m, entry)
+
+    def _take_imu(self, m: Measurement) -> None:
         v = m.values
-        ch = m.channel
-        if ch == "imu":
-            yaw_rate = (v["yaw_rate_radps"] - self.corrections.gyro_bias_radps) / self.corrections.yaw_rate_scale
+        if self.tracking:
             self.odometry.advance(m.t_s)
-            self.odometry.set_yaw_rate(yaw_rate)
-            if not self.anchored:
-                self._ignite(self.ignition.yaw_rate(m.t_s, yaw_rate))
-            if self.pim is not None:
+            if self._preintegrating:
                 self._integrate_imu(m.t_s)
-                self._imu_held = (
-                    np.array([v["accel_x_mps2"], v["accel_y_mps2"], 9.81]),
-                    np.array([0.0, 0.0, yaw_rate]),
-                )
-            return
-        if ch == "wheel":
-            speed = v["speed_mps"] / self.corrections.wheel_scale
-            self.odometry.advance(m.t_s)
-            self.odometry.set_speed(speed)
-            if not self.anchored:
-                self._ignite(self.ignition.speed(m.t_s, speed))
-            return
+        if math.isfinite(v["yaw_rate_radps"]):
+            yaw_rate = (v["yaw_rate_radps"] - self.corrections.gyro_bias_radps) / self.corrections.yaw_rate_scale
+            self.odometry.set_yaw_rate(yaw_rate)
+            self._gyro_radps = np.array([0.0, 0.0, yaw_rate])
+            if self.tracking and not self.anchored:
+                self._ignite(self.ignition.yaw_rate(m.t_s, yaw_rate))
+        if self._preintegrating and all([self._finite(m, "accel_x_mps2"), self._finite(m, "accel_y_mps2")]):
+            self._accel_mps2 = np.array([v["accel_x_mps2"], v["accel_y_mps2"], GRAVITY_MPS2])
+            self._accel_t = m.t_s
+
+    def _entry(self, m: Measurement) -> tuple | None:
+        """An absolute reading as a factor entry; None (counted) when it cannot give one."""
+        v, ch = m.values, m.channel
         if ch == "rfid":
-            reading = Channel("rfid", {k: [x] for k, x in v.items()}, validate=False)
-            d, s = self.range_model.ranges(reading)
-            if not (np.isfinite(d[0]) and np.isfinite(s[0]) and s[0] > 0):
-                return
+            if not self.range_models:
+                return None
+            distance, sigma, which = ranges_by_field(self.range_models, Channel("rfid", {k: [x] for k, x in v.items()}, validate=False))
+            if which[0] < 0:
+                _count(self.diagnostics["non_finite"], "rfid." + "/".join(self.range_models))
+                return None
+            if not (np.isfinite(distance[0]) and np.isfinite(sigma[0]) and sigma[0] > 0):
+                self.diagnostics["ranges_unusable"] += 1
+                return None
             # the sigma at the reading's own distance stands in until the
             # keyframe's estimate gives a better one (see _range_sigma_m)
-            entry = ("range", ("tag", int(v["tag_id"])), float(d[0]), float(s[0]) * self.config.range_sigma_scale, True)
-        elif ch == "rsu":
-            rid = int(v["rsu_id"])
-            if np.isfinite(v.get("range_m", np.nan)):
-                entry = ("range", ("rsu", rid), float(v["range_m"]), float(v["sigma_m"]), False)
-            else:
-                entry = ("fix", float(v["east_m"]), float(v["north_m"]), float(v["sigma_m"]))
-        elif ch == "gnss":
-            entry = ("fix", float(v["east_m"]), float(v["north_m"]), float(v["sigma_m"]))
-        elif ch == "compass":
-            entry = ("compass", float(v["yaw_rad"]))
-        else:
-            return
+            field_name = list(self.range_models)[which[0]]
+            return ("range", ("tag", int(v["tag_id"])), float(distance[0]), float(sigma[0]) * self.config.range_sigma_scale, field_name)
+        if ch not in ABSOLUTE_FIELDS or not all([self._finite(m, name) for name in ABSOLUTE_FIELDS[ch]]):
+            return None
+        if ch == "compass":
+            return ("compass", float(v["yaw_rad"]))
+        if ch == "rsu":
+            if math.isfinite(v.get("range_m", math.nan)):
+                return ("range", ("rsu", int(v["rsu_id"])), float(v["range_m"]), float(v["sigma_m"]), None)
+            if not all([self._finite(m, "east_m"), self._finite(m, "north_m")]):
+                return None
+        return ("fix", float(v["east_m"]), float(v["north_m"]), float(v["sigma_m"]))
+
+    def _place(self, m: Measurement, entry: tuple) -> list[Increment]:
+        """Attach a reading to the keyframe of its own time: waiting, ready for the next update, a late increment, or dropped (counted)."""
+        at = self._keyframe_at(m.t_s)
+        current = at is not None and self.tracking and at[0] is self.segments[-1]
+        if current and not self.anchored:
+            self._ignite_with(m.t_s, entry)  # late or not: ignition places it at its own time
+        if m.arrival_s - m.t_s > self.max_delay_s:
+            _count(self.diagnostics["late_dropped"], m.channel)
+            return []
+        if current and at[1] > self.last_keyframe:
+            self._waiting.setdefault(at[1], []).append((m.channel, entry))
+            return []
+        if at is None or not at[0].contains(at[1]):
+            _count(self.diagnostics["without_odometry"], m.channel)
+            return []
+        k = at[1]
+        if not self._keyframe_alive(k):
+            _count(self.diagnostics["late_dropped"], m.channel)
+            return []
+        _count(self.diagnostics["late_attached"], m.channel)
+        if current:
+            self._ready.append((k, m.channel, entry))
+            return []
+        # a keyframe of a track that has ended: in the smoother, whatever the current track
+        inc = Increment(k, self.keyframe_time(k), late=True)
+        self._attach(inc, [(k, m.channel, entry)], at_estimate=True)
+        return [inc]
+
+    # -- track segments -------------------------------------------------------
+    def _begin_segment(self, t_s: float) -> None:
+        """A new track from ``t_s`` (the first keyframe's time): a fresh start, as at the drive's beginning."""
+        if self._lost_s is not None:
+            self.diagnostics["odometry_gaps"].append({"from_s": self._lost_s, "to_s": t_s, "restart": None})
+        first = self.last_keyframe + 1
+        history = (self.fixed_factors.size(), len(self.range_records), len(self.odometry_records), self.diagnostics["ranges"])
+        self.segments.append(Segment(first, t_s, first - 1, history))
+        self.model.start_segment(first)
+        self.odometry.start(t_s)
+        self._imu_t = t_s
+        self._imu_samples = []
+        self.tracking = True
+        self.anchored = self.initial_pose is not None and self._lost_s is None  # the user's pose holds for the drive's start only
+        self.ignition = Ignition(**self._ignition_args)
+        self._start = None
+        self._landmarks = {}
+
+    def _end_segment(self) -> list[Increment]:
+        """The track ends (its odometry is lost, or the drive ends).
+
+        Readings waiting for keyframes that will not be closed are dropped
+        (``without_odometry``); late readings for closed keyframes go into
+        the held track, or, once it is in the smoother, into a late
+        increment. A held track is released if ignition, given a last try,
+        starts it, else forgotten (its factors leave the history too).
+        """
+        for entries in self._waiting.values():
+            for channel, _ in entries:
+                _count(self.diagnostics["without_odometry"], channel)
+        self._waiting = {}
+        out = []
+        if self._ready and self.anchored:
+            inc = Increment(self.last_keyframe, self.keyframe_time(self.last_keyframe), late=True)
+            self._attach(inc, self._ready, at_estimate=True)
+            out.append(inc)
+        elif self._ready and self._backlog:
+            self._attach(self._backlog[-1], self._ready, at_estimate=False)
+        self._ready = []
         if not self.anchored:
-            self._ignite_with(m.t_s, entry)
-        k = max(self._nearest_keyframe(m.t_s), 0)
-        if k > self.last_keyframe:
-            self._waiting.setdefault(k, []).append(entry)
-        elif arrival - self.keyframe_time(k) <= self.max_delay_s + 0.5 * self.period_s and self._keyframe_alive(k):
-            self._ready.append((k, entry))
-            self.diagnostics["late_attached"] += 1
-        else:
-            self.diagnostics["late_dropped"] += 1
+            if self._backlog:
+                self._ignite(self.ignition.finish())
+            if self._start is not None and self._backlog:
+                out.append(self._release(None, self._move_onto_start(self._start)))
+            else:
+                self._discard_segment()
+        self.tracking = False
+        return out
+
+    def _discard_segment(self) -> None:
+        """Forget the current, never started track: its keyframes, its factors in the history and its keyframe numbers."""
+        seg = self.segments.pop()
+        n_fixed, n_ranges, n_odometry, n_range_factors = seg.history
+        self.fixed_factors.resize(n_fixed)
+        del self.range_records[n_ranges:]
+        del self.odometry_records[n_odometry:]
+        self.diagnostics["ranges"] = n_range_factors
+        for k in range(seg.first, self.last_keyframe + 1):
+            self.states.pop(k, None)
+            self.speeds.pop(k, None)
+        self.last_keyframe = seg.first - 1
+        self._backlog = []
+        self._backlog_landmarks = {}
 
     # -- start-up -------------------------------------------------------------
     def _ignite_with(self, t_s: float, entry: tuple) -> None:
@@ -290,21 +490,26 @@ class GraphBuilder:
         self._ignite(state)
 
     def _ignite(self, state: StartState | None) -> None:
+        """Take ignition's start state: the drive's start, or (after a gap) the restart of its track."""
         if state is not None and self._start is None:
             self._start = state
-            self.diagnostics["start"] = state.describe()
+            if self.diagnostics["start"] is None:
+                self.diagnostics["start"] = state.describe()
+            else:
+                self.diagnostics["odometry_gaps"][-1]["restart"] = state.describe()
 
     def recalibrate(self, corrections: SensorProfile, range_scale: float, range_model) -> None:
         """Use learnt corrections from now on: readings still to come are corrected, new factors get the noise levels.
 
         ``corrections``: the yaw-rate and wheel corrections (of raw readings)
         and noise levels; ``range_scale`` and ``range_model`` (a sigma) for
-        tag ranges still to come. Factors already built stay as they are.
+        tag ranges still to come (of the field the model reads). Factors
+        already built stay as they are.
         """
         self.corrections = corrections
         self.range_scale = range_scale
         if range_model is not None:
-            self.range_model = range_model
+            self.range_models[range_model.input_column] = range_model
         o = self.odometry
         if corrections.heading_noise_radps_per_sqrt_s is not None:
             o.heading_var = corrections.heading_noise_radps_per_sqrt_s**2
@@ -315,69 +520,83 @@ class GraphBuilder:
         return k in self.states
 
     def _integrate_imu(self, t_s: float) -> None:
+        """Hold the last IMU sample up to ``t_s``: one preintegration step of the open interval.
+
+        The accelerometers' sample is held for at most ``max_odometry_gap_s``;
+        after that the step integrates zero body acceleration and is marked
+        unmeasured (:meth:`InertialModel.preintegrate` widens its noise).
+        """
         dt = t_s - self._imu_t
-        if self._imu_held is not None and dt > 0:
-            self.pim.integrateMeasurement(self._imu_held[0], self._imu_held[1], dt)
-        if dt > 0 or self._imu_held is None:
+        if self._gyro_radps is not None and dt > 0:
+            measured = self._accel_mps2 is not None and self._imu_t - self._accel_t <= self.max_gap_s
+            force = self._accel_mps2 if measured else np.array([0.0, 0.0, GRAVITY_MPS2])
+            self._imu_samples.append((force, self._gyro_radps, dt, measured))
+        if dt > 0 or self._gyro_radps is None:
             self._imu_t = t_s
 
     # -- keyframes ------------------------------------------------------------
     def _initial_state(self) -> KeyframeState:
-        """Keyframe 0: the user's start pose, else the origin heading east (moved onto ignition's start later)."""
-        p = self.initial_pose
+        """A track's first keyframe: the user's start pose, else the origin heading east (moved onto ignition's start later)."""
+        p = self.initial_pose if self.anchored else None
         e, n, yaw = (p.east_m, p.north_m, p.yaw_rad) if p is not None else (0.0, 0.0, 0.0)
         v = self.odometry.speed_mps
         return KeyframeState(float(e), float(n), float(yaw), v * math.cos(yaw), v * math.sin(yaw))
 
-    def _close(self, k: int, arrival: float) -> Increment:
+    def _close(self, k: int) -> Increment:
         t_k = self.keyframe_time(k)
         inc = Increment(k, t_k)
+        seg = self.segments[-1]
         delta = self.odometry.cut(t_k)
-        if self.pim is not None:
+        if self._preintegrating:
             self._integrate_imu(t_k)
         entries = self._waiting.pop(k, [])
-        if k == 0:
+        if k == seg.first:
             state = self._initial_state()
             inc.anchoring = self.anchored
             if self.anchored:
                 p = self.initial_pose
-                self._add(inc, self.model.prior_factors(0, state, p.position_sigma_m, p.yaw_sigma_rad))
+                self._add(inc, self.model.prior_factors(k, state, p.position_sigma_m, p.yaw_sigma_rad))
         else:
-            state = self.model.predict(self.states[k - 1], delta, self.pim)
-            wheel, *others = self.model.odometry_factors(k, delta, self.pim)
+            pim = self.model.preintegrate(self._imu_samples, self._imu_bias) if self._preintegrating else None
+            state = self.model.predict(self.states[k - 1], delta, pim)
+            wheel, *others = self.model.odometry_factors(k, delta, pim)
             inc.factors.add(wheel)
             if self.keep_history:
                 self.odometry_records.append((k, delta))
             self._add(inc, others)
+        self._imu_samples = []
+        self._imu_bias = state.bias
         self.states[k] = state
         self.speeds[k] = delta.mean_speed_mps
         self.model.insert_values(inc.values, k, state)
         for key in self.model.keyframe_keys(k):
             inc.timestamps[key] = t_k
         self._add(inc, self.model.keyframe_factors(k, state))
-        if self.pim is not None:
-            self.pim = self.model.new_preintegration(state.bias)
-        self.last_keyframe = k
-        ready = [(k, e) for e in entries] + self._ready
+        self.last_keyframe = seg.last = k
+        ready = [(k, channel, e) for channel, e in entries] + self._ready
         self._ready = []
         if not self.anchored:
             self._backlog.append(inc)
-            self._attach(inc, ready)
+            self._attach(inc, ready, at_estimate=False)
             if self._start is None:
-                inc.released = []
                 self._prune(k)
                 return inc
             return self._release(inc, self._move_onto_start(self._start))
-        self._attach(inc, ready)
+        self._attach(inc, ready, at_estimate=True)
         inc.released = [k]
+        self.started = True
         self._prune(k)
         return inc
 
     def _prune(self, k: int) -> None:
-        """Forget states no late reading can refer to (fixed-lag memory stays flat)."""
+        """Forget states no late reading can refer to (fixed-lag memory stays flat).
+
+        Kept: those within ``max_delay_s`` of the newest, and of the keyframes
+        one measurement may close at once (up to ``max_odometry_gap_s`` of them).
+        """
         if self.keep_history or not self.anchored:
             return
-        old = k - int(math.ceil((self.max_delay_s + 1.0) / self.period_s)) - 1
+        old = k - int(math.ceil((max(self.max_delay_s, self.max_gap_s) + 1.0) / self.period_s)) - 1
         self.states.pop(old, None)
         self.speeds.pop(old, None)
 
@@ -388,9 +607,10 @@ class GraphBuilder:
                 self.fixed_factors.add(f)
 
     # -- absolute measurements ------------------------------------------------
-    def _attach(self, inc: Increment, ready: list[tuple[int, tuple]]) -> None:
+    def _attach(self, inc: Increment, ready: list[tuple[int, str, tuple]], at_estimate: bool) -> None:
+        """Factors of readings for closed keyframes; ``at_estimate``: their keyframes' states are the smoother's."""
         c = self.config
-        for k, entry in ready:
+        for k, _, entry in ready:
             kind = entry[0]
             if kind == "compass":
                 self._add(inc, [self.model.compass_factor(k, entry[1], c.compass_sigma_rad)])
@@ -400,20 +620,20 @@ class GraphBuilder:
                 sig = np.array([s, s, 1e3]) if dim == 3 else s
                 self._add(inc, [self.model.fix_factor(k, e, n, robust(sig, c, dim))])
             else:
-                _, which, reading, sigma, from_model = entry
+                _, which, reading, sigma, field_name = entry
                 key = self._landmark_key(inc, which, k)
-                if from_model and self.anchored and k in self.states:
+                if field_name is not None and at_estimate and k in self.states:
                     s, (e, n) = self.states[k], self._landmark_position(which)
-                    at_estimate = float(self._range_sigma_m(np.array([math.hypot(s.east_m - e, s.north_m - n) * self.range_scale]))[0])
-                    sigma = at_estimate if math.isfinite(at_estimate) else sigma
+                    at = float(self._range_sigma_m(np.array([math.hypot(s.east_m - e, s.north_m - n) * self.range_scale]), field_name)[0])
+                    sigma = at if math.isfinite(at) else sigma
                 if self.keep_history:
-                    self.range_records.append(RangeRecord(k, key, reading, sigma, from_model))
+                    self.range_records.append(RangeRecord(k, key, reading, sigma, field_name))
                 noise = robust(sigma / self.range_scale, c)
                 inc.factors.add(self.model.range_factor(k, key, reading / self.range_scale, noise))
                 self.diagnostics["ranges"] += 1
 
-    def _range_sigma_m(self, distance_m: np.ndarray) -> np.ndarray:
-        """The range model's sigma at estimated distances (times ``range_sigma_scale``).
+    def _range_sigma_m(self, distance_m: np.ndarray, field_name: str) -> np.ndarray:
+        """The sigma of the range model of a reading field at estimated distances (times ``range_sigma_scale``).
 
         A tag reading's noise depends on the true distance (RSS fading is
         multiplicative: decimetres at 1 m, metres at 8 m; see
@@ -425,17 +645,21 @@ class GraphBuilder:
         distance: -0.04 m). The estimate's distance has no such correlation
         with the reading's error. Non-finite sigmas come back as NaN.
         """
-        sigma = np.asarray(self.range_model.predict_sigma_m(np.asarray(distance_m, dtype=np.float64)), dtype=np.float64)
+        sigma = np.asarray(self.range_models[field_name].predict_sigma_m(np.asarray(distance_m, dtype=np.float64)), dtype=np.float64)
         return np.where(np.isfinite(sigma) & (sigma > 0), sigma * self.config.range_sigma_scale, np.nan)
 
     def reweight_ranges(self, values: gtsam.Values) -> None:
         """Re-evaluate every tag range's sigma at the distance of a solved trajectory (``keep_history``)."""
-        records = [r for r in self.range_records if r.sigma_from_model]
+        records = [r for r in self.range_records if r.field is not None]
         if not records:
             return
         pos = np.array([self.model.position(values, r.keyframe) for r in records])
         marks = np.array([self.landmark_positions[r.landmark_key] for r in records])
-        sigma = self._range_sigma_m(np.hypot(*(pos - marks).T) * self.range_scale)
+        distance = np.hypot(*(pos - marks).T) * self.range_scale
+        fields = np.array([r.field for r in records])
+        sigma = np.full(len(records), np.nan)
+        for name in set(fields.tolist()):
+            sigma[fields == name] = self._range_sigma_m(distance[fields == name], name)
         for r, s in zip(records, sigma):
             if np.isfinite(s):
                 r.sigma_m = float(s)
@@ -481,8 +705,11 @@ class GraphBuilder:
         return float(np.sum(measured * measured) / along) if along > 1e-12 else 1.0
 
     def _landmark_key(self, inc: Increment, which: tuple[str, int], k: int) -> int:
+        """The landmark variable of a sighting: the landmark's key of its last sighting within
+        ``landmark_lifetime_s``, else a fresh key with its prior. A late increment (for a track
+        that has ended) takes fresh keys and leaves the current track's landmarks alone."""
         t_k = inc.t_s
-        known = self._landmarks.get(which)
+        known = None if inc.late else self._landmarks.get(which)
         if known is not None and t_k - known[1] <= self.landmark_lifetime_s:
             key = known[0]
         else:
@@ -492,11 +719,12 @@ class GraphBuilder:
             factors, point = self.model.landmark(key, e, n)
             self._add(inc, factors)
             inc.values.insert(key, point)
-            if not self.anchored:
+            if not (self.anchored or inc.late):
                 self._backlog_landmarks[key] = point
             if self.keep_history:
                 self.landmark_positions[key] = np.array([e, n])
-        self._landmarks[which] = (key, t_k)
+        if not inc.late:
+            self._landmarks[which] = (key, t_k)
         inc.timestamps[key] = t_k
         return key
 
@@ -504,19 +732,21 @@ class GraphBuilder:
         return self.tags[which[1]][:2] if which[0] == "tag" else self.rsus[which[1]]
 
     def _move_onto_start(self, start: StartState) -> int:
-        """Turn and shift the held track so the keyframe of the start sits on ignition's start state; that keyframe.
+        """Turn and shift the held track (the current segment) so the keyframe of the start sits on ignition's start state; that keyframe.
 
         The start state's time may fall up to a keyframe after the keyframe's:
         its position is taken back along its velocity.
         """
-        k = min(max(self._nearest_keyframe(start.t_s), 0), self.last_keyframe)
+        seg = self.segments[-1]
+        k = min(max(seg.nearest(start.t_s, self.period_s), seg.first), self.last_keyframe)
         ref = self.states[k]
         lag = start.t_s - self.keyframe_time(k)
         e, n = start.east_m - start.v_east_mps * lag, start.north_m - start.v_north_mps * lag
         turn = start.yaw_rad - ref.yaw_rad
-        for j in list(self.states):
+        for j in range(seg.first, self.last_keyframe + 1):
             self.states[j] = self.states[j].moved(ref.east_m, ref.north_m, turn, e, n)
-        self.diagnostics["anchor_keyframe"] = k
+        if self.diagnostics["anchor_keyframe"] is None:
+            self.diagnostics["anchor_keyframe"] = k
         return k
 
     def _release(self, last: Increment | None, start_keyframe: int | None) -> Increment:
@@ -564,5 +794,10 @@ class GraphBuilder:
             self._add(merged, self.model.prior_factors(at, self.states[at], sigma_m, sigma_yaw))
         self._backlog = []
         self._backlog_landmarks = {}
-        self.anchored = True
+        self.anchored = self.started = True
         return merged
+
+
+def _count(counts: dict[str, int], key: str) -> None:
+    """One more of ``key`` in a diagnostics count."""
+    counts[key] = counts.get(key, 0) + 1

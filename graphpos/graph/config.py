@@ -108,7 +108,16 @@ class GraphConfig:
         the gyro too long after a real turn).
     max_delay_s : float
         A range/RSU reading arriving up to this late is attached to the
-        keyframe of its own timestamp; later ones are dropped (counted).
+        keyframe of its own timestamp; later ones are dropped (counted per
+        channel in ``diagnostics["late_dropped"]``).
+    max_odometry_gap_s : float
+        An odometry sensor (wheel speed, yaw rate; the accelerometers of the
+        inertial graph) silent for up to this long is held at its last
+        sample. A longer silence of the wheel or the gyro ends the track: the
+        graph starts again, from a fresh start-up, once both are back
+        (:mod:`graphpos.graph.builder`); one of the accelerometers leaves
+        the inertial graph on the wheel until they are back. 2 s: the MRCLAM
+        robots' odometry pauses for up to 1.03 s.
     fixed_lag_s : float
         Smoother lag of ``graph-fixed-lag``, s. Keyframes are marginalised
         once per ``smoothers.MARGINALISE_EVERY_S`` (1 s), so the window
@@ -176,6 +185,7 @@ class GraphConfig:
     heading_drift_sigma_radps: float = math.radians(0.1)
     compass_sigma_rad: float = math.radians(1.5)
     max_delay_s: float = 3.0
+    max_odometry_gap_s: float = 2.0
     fixed_lag_s: float = 10.0
     final: bool = False
     output_covariance: bool = True

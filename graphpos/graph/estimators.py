@@ -34,6 +34,7 @@ from graphpos.graph.config import GraphConfig
 from graphpos.graph.models import KeyframeState, make_model
 from graphpos.graph.smoothers import FixedLagSmoother, Isam2Smoother, ValuesSource, gtsam_error
 from graphpos.ignition import NOT_STARTED
+from graphpos.ranging.drive_models import reading_models
 
 #: Extra (relinearising) iSAM2 updates when the start-up backlog is released.
 ANCHOR_ITERATIONS = 4
@@ -69,12 +70,12 @@ class _GraphEstimator(Estimator):
 
     # -- online ---------------------------------------------------------------
     def start(self, drive: Drive) -> None:
-        model_range = self.resolved_range_model(drive) if drive.has("rfid") else self.range_model
+        range_models = reading_models(drive, self.resolved_range_model(drive), self.name) if drive.has("rfid") else {}
         self.config = _with_drive_rates(self.config, drive)
         self.model = make_model(self.config, drive.has_accelerometers)
         if self.model.name == "inertial" and not drive.has_accelerometers:
             raise MissingChannelError(f"{self.name}: the inertial graph needs accelerometers; drive '{drive.name}' has none (use parameterisation='planar')")
-        self.builder = GraphBuilder(self.config, self.model, drive, model_range, initial_pose=self.start_pose(drive), **self._builder_options())
+        self.builder = GraphBuilder(self.config, self.model, drive, range_models, initial_pose=self.start_pose(drive), **self._builder_options())
         self.smoother = self._make_smoother(self.model.name)
         self.rows: list[OutputRow] = []
         self.update_times_s: list[float] = []
@@ -84,10 +85,12 @@ class _GraphEstimator(Estimator):
         return self._apply(self.builder.add(measurement))
 
     def _apply(self, increments: list[Increment]) -> list[OutputRow]:
-        """Update the smoother with each released increment; a row per keyframe once started (none before)."""
+        """Update the smoother with each released (or late) increment; a row per new keyframe once started (none before)."""
         out = []
         for inc in increments:
-            if inc.released:
+            if inc.late:
+                self._update(inc)
+            elif inc.released:
                 self._update(inc)
                 out.append(self._row(inc.keyframe))
         self.rows.extend(out)
@@ -108,8 +111,9 @@ class _GraphEstimator(Estimator):
             self.smoother.update(inc.factors, inc.values, inc.timestamps, ANCHOR_ITERATIONS if inc.anchoring else 0)
         except RuntimeError as exc:
             raise gtsam_error(exc, f"{self.name} on '{self._drive_name}', keyframe {inc.keyframe} (t = {inc.t_s:.2f} s)") from None
-        k = inc.keyframe
-        self.builder.states[k] = self.model.read(self.smoother.source(), k, self.builder.speeds[k])
+        if not inc.late:
+            k = inc.keyframe
+            self.builder.states[k] = self.model.read(self.smoother.source(), k, self.builder.speeds[k])
         self.update_times_s.append(time.perf_counter() - t)
 
     def _row(self, k: int) -> OutputRow:
@@ -128,7 +132,7 @@ class _GraphEstimator(Estimator):
 
     def _estimate(self, rows: list[OutputRow]) -> Estimate:
         times = np.asarray(self.update_times_s) if self.update_times_s else np.zeros(1)
-        if not self.builder.anchored:
+        if not self.builder.started:
             self.builder.diagnostics["not_started"] = NOT_STARTED
         diagnostics = {
             **self.builder.diagnostics,
@@ -252,7 +256,7 @@ class GraphIsam2(_GraphEstimator):
 
     def finish(self) -> Estimate:
         self._apply(self.builder.flush())
-        if not self.config.final or not self.builder.anchored:
+        if not self.config.final or not self.builder.started:
             return self._estimate(self.rows)
         try:
             self.smoother.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), {}, ANCHOR_ITERATIONS)
@@ -297,13 +301,22 @@ class GraphFixedLag(_GraphEstimator):
 
 
 class GraphBatch(_GraphEstimator):
-    """Levenberg–Marquardt over the whole drive, from the causal iSAM2 pass; marginal covariances."""
+    """Levenberg–Marquardt over the whole drive, from the causal iSAM2 pass; marginal covariances.
+
+    Offline, a reading counts as arriving when it was taken, and ``run``
+    takes the measurements in that order (``merge_by = "t"``): no reading is
+    late, whenever it reached the computer (even after the odometry ended).
+    """
 
     name = "graph-batch"
     summary = "GTSAM batch smoother (Levenberg-Marquardt over the whole drive, from an iSAM2 pass) with marginal covariances"
+    merge_by = "t"
 
     def _builder_options(self) -> dict[str, Any]:
         return {"max_delay_s": math.inf}
+
+    def process(self, measurement: Measurement) -> list[OutputRow]:
+        return self._apply(self.builder.add(measurement._replace(arrival_s=measurement.t_s)))
 
     def run(self, drive: Drive) -> Estimate:
         """One solve with a given profile; else self-calibration (``config.self_calibrate``): two.
@@ -326,7 +339,7 @@ class GraphBatch(_GraphEstimator):
                                     turn_scale_density_per_sqrt_s=c.turn_scale_density_per_sqrt_s * c.calibration_odometry_factor)
         first = GraphBatch(loose, self.layout, self.range_model, self.initial_pose)
         first_estimate = first.run(drive)
-        if not first.builder.anchored or not first.builder.odometry_records:
+        if not first.builder.started or not first.builder.odometry_records:
             return first_estimate.with_wall_time(time.perf_counter() - t0)
         profile = fit_profile(first.builder, first.values, first.config, drive.name)
         if profile is None:  # too short a drive, or no motion, to calibrate on: one plain solve
@@ -354,6 +367,10 @@ class GraphBatch(_GraphEstimator):
         keyframes makes the pass several times cheaper than the online one.
         """
         for inc in increments:
+            if inc.late:
+                self._flush_pending()
+                self._update(inc)
+                continue
             if not inc.released:
                 continue
             if self._pending is None:
@@ -374,7 +391,7 @@ class GraphBatch(_GraphEstimator):
 
         self._apply(self.builder.flush())
         self._flush_pending()
-        if not self.builder.anchored:
+        if not self.builder.started:
             return self._estimate([])
         try:
             initial = self.smoother.estimate()

@@ -19,6 +19,7 @@ the 3-D states in the plane.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -111,6 +112,9 @@ class PlanarModel:
     def first_keyframe_keys(self, k: int) -> list[int]:
         return []
 
+    def start_segment(self, k: int) -> None:
+        """Keyframe ``k`` begins a track (nothing to do: a Pose2 keyframe has no shared variables)."""
+
     def insert_values(self, values: gtsam.Values, k: int, state: KeyframeState) -> None:
         values.insert(X(k), gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad))
 
@@ -180,9 +184,6 @@ class PlanarModel:
         """East/north covariance from a Pose2 marginal (tangent: body x, y, theta)."""
         return _rot_en(state.yaw_rad, marginal[:2, :2])
 
-    def new_preintegration(self, bias: np.ndarray | None):
-        return None
-
 
 class InertialModel:
     """Pose3 ``X(k)`` and velocity ``V(k)`` per keyframe; IMU bias ``B(b)`` once per :attr:`BIAS_EVERY` keyframes.
@@ -191,7 +192,9 @@ class InertialModel:
     consecutive bias nodes are tied by a BetweenFactorConstantBias with the
     bias random walk over their interval. A bias node per keyframe (GTSAM's
     CombinedImuFactor) made 15 unknowns per keyframe; the biases drift over
-    minutes, so one node per second loses nothing and leaves 9.6.
+    minutes, so one node per second loses nothing and leaves 9.6. A track
+    that begins after an odometry gap (:meth:`start_segment`) begins with a
+    bias node of its own.
     """
 
     name = "inertial"
@@ -210,12 +213,28 @@ class InertialModel:
     INTEGRATION_VARIANCE_M2PS = 1e-3
     #: Keyframes per IMU-bias node.
     BIAS_EVERY = 10
+    #: Accelerometer noise density of an interval without accelerometer
+    #: samples (m/s^2/sqrt(Hz)): zero body acceleration is integrated
+    #: instead, with a density that covers a car's accelerations (a few
+    #: m/s^2 in braking and turns: 3 m/s^2 sustained for a second is well
+    #: inside 3 sigma), so the wheel factor carries the velocity.
+    UNMEASURED_ACCEL_DENSITY = 3.0
 
     def __init__(self, config: GraphConfig):
         self.config = config
+        self.params = self._preintegration_params(config.accel_sigma_mps2 / math.sqrt(config.imu_rate_hz))
+        self.unmeasured_params = self._preintegration_params(self.UNMEASURED_ACCEL_DENSITY)
+        self.bias_walk_density = np.array([config.accel_bias_walk_mps2_per_sqrt_s] * 3 + [config.gyro_bias_walk_radps_per_sqrt_s] * 3)
+        self._segment_starts = [0]
+        self.vertical_velocity_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([self.FREE_SIGMA, self.FREE_SIGMA, config.lateral_slip_sigma_mps]))
+        self.plane_noise = gtsam.noiseModel.Diagonal.Sigmas(
+            np.array([self.PLANE_TILT_SIGMA_RAD, self.PLANE_TILT_SIGMA_RAD, self.FREE_SIGMA, self.FREE_SIGMA, self.FREE_SIGMA, self.PLANE_HEIGHT_SIGMA_M])
+        )
+
+    def _preintegration_params(self, accel_density: float) -> gtsam.PreintegrationParams:
+        """GTSAM's preintegration parameters with an accelerometer noise density (m/s^2/sqrt(Hz))."""
         params = gtsam.PreintegrationParams.MakeSharedU(GRAVITY_MPS2)
-        accel_density = config.accel_sigma_mps2 / math.sqrt(config.imu_rate_hz)
-        gyro_density = config.gyro_sigma_radps / math.sqrt(config.imu_rate_hz)
+        gyro_density = self.config.gyro_sigma_radps / math.sqrt(self.config.imu_rate_hz)
         params.setAccelerometerCovariance(np.eye(3) * accel_density**2)
         params.setGyroscopeCovariance(np.eye(3) * gyro_density**2)
         # Position integration noise (m^2/s): the planar IMU ignores road grade
@@ -223,23 +242,29 @@ class InertialModel:
         # also keeps the IMU factor's position block from being so stiff that
         # a long tag gap makes iSAM2's Cholesky indeterminate.
         params.setIntegrationCovariance(np.eye(3) * self.INTEGRATION_VARIANCE_M2PS)
-        self.bias_walk_density = np.array([config.accel_bias_walk_mps2_per_sqrt_s] * 3 + [config.gyro_bias_walk_radps_per_sqrt_s] * 3)
-        self.params = params
-        self.vertical_velocity_noise = gtsam.noiseModel.Diagonal.Sigmas(np.array([self.FREE_SIGMA, self.FREE_SIGMA, config.lateral_slip_sigma_mps]))
-        self.plane_noise = gtsam.noiseModel.Diagonal.Sigmas(
-            np.array([self.PLANE_TILT_SIGMA_RAD, self.PLANE_TILT_SIGMA_RAD, self.FREE_SIGMA, self.FREE_SIGMA, self.FREE_SIGMA, self.PLANE_HEIGHT_SIGMA_M])
-        )
+        return params
+
+    def start_segment(self, k: int) -> None:
+        """Keyframe ``k`` begins a track (the drive's first, or one after an odometry gap): it gets a bias node of its own.
+
+        A track that replaces one forgotten from the same keyframe on
+        (never started, :meth:`GraphBuilder._end_segment`) replaces its start.
+        """
+        while self._segment_starts and self._segment_starts[-1] >= k:
+            self._segment_starts.pop()
+        self._segment_starts.append(k)
 
     def keyframe_keys(self, k: int) -> list[int]:
-        return [X(k), V(k), B(k)] if k % self.BIAS_EVERY == 0 else [X(k), V(k)]
+        return [X(k), V(k), B(k)] if self.bias_key(k) == B(k) else [X(k), V(k)]
 
     def bias_key(self, k: int) -> int:
-        """The bias node in effect from keyframe ``k`` to ``k + 1``."""
-        return B(k - k % self.BIAS_EVERY)
+        """The bias node in effect from keyframe ``k`` to ``k + 1``: every :attr:`BIAS_EVERY` keyframes, and at a track's start."""
+        first = self._segment_starts[bisect.bisect_right(self._segment_starts, k) - 1]
+        return B(max(k - k % self.BIAS_EVERY, first))
 
     def first_keyframe_keys(self, k: int) -> list[int]:
         """Keys beyond :meth:`keyframe_keys` that the graph's first keyframe needs: its bias node."""
-        return [] if k % self.BIAS_EVERY == 0 else [self.bias_key(k)]
+        return [] if self.bias_key(k) == B(k) else [self.bias_key(k)]
 
     @staticmethod
     def _pose(state: KeyframeState) -> gtsam.Pose3:
@@ -248,7 +273,7 @@ class InertialModel:
     def insert_values(self, values: gtsam.Values, k: int, state: KeyframeState) -> None:
         values.insert(X(k), self._pose(state))
         values.insert(V(k), np.array([state.v_east_mps, state.v_north_mps, 0.0]))
-        if k % self.BIAS_EVERY == 0:
+        if self.bias_key(k) == B(k):
             self.insert_bias(values, k, state)
 
     def insert_bias(self, values: gtsam.Values, k: int, state: KeyframeState) -> None:
@@ -293,7 +318,7 @@ class InertialModel:
         loose so the gyro, already in the IMU factor, is not counted twice.
         """
         factors = [self.wheel_factor(k, delta), gtsam.ImuFactor(X(k - 1), V(k - 1), X(k), V(k), self.bias_key(k - 1), pim)]
-        if k % self.BIAS_EVERY == 0:
+        if self.bias_key(k) != self.bias_key(k - 1):
             walk = gtsam.noiseModel.Diagonal.Sigmas(self.bias_walk_density * math.sqrt(self.BIAS_EVERY / self.config.keyframe_rate_hz))
             factors.append(gtsam.BetweenFactorConstantBias(self.bias_key(k - 1), B(k), gtsam.imuBias.ConstantBias(), walk))
         return factors
@@ -365,8 +390,19 @@ class InertialModel:
         """East/north covariance from a Pose3 marginal (tangent: rotation, then body translation)."""
         return _rot_en(state.yaw_rad, marginal[3:5, 3:5])
 
-    def new_preintegration(self, bias: np.ndarray | None):
-        return gtsam.PreintegratedImuMeasurements(self.params, gtsam.imuBias.ConstantBias(*self._bias_parts(bias)))
+    def preintegrate(self, samples: list[tuple[np.ndarray, np.ndarray, float, bool]], bias: np.ndarray | None) -> gtsam.PreintegratedImuMeasurements:
+        """One keyframe interval's IMU samples preintegrated at ``bias``.
+
+        ``samples``: (specific force (3,), angular rate (3,), dt, whether the
+        accelerometers were measured) per held step. An interval with an
+        unmeasured step takes :attr:`unmeasured_params` (wide accelerometer
+        noise) throughout.
+        """
+        params = self.params if all(measured for *_, measured in samples) else self.unmeasured_params
+        pim = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias(*self._bias_parts(bias)))
+        for force, rate, dt, _ in samples:
+            pim.integrateMeasurement(force, rate, dt)
+        return pim
 
 
 def make_model(config: GraphConfig, has_accelerometers: bool):

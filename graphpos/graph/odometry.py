@@ -124,8 +124,9 @@ class PlanarOdometry:
 
     # -- samples --------------------------------------------------------------
     def start(self, t_s: float) -> None:
-        """Begin integrating at ``t_s``."""
+        """Begin integrating at ``t_s`` (a new track: anything integrated before is dropped)."""
         self._t_s = t_s
+        self._dt, self._v, self._w = [], [], []
 
     def set_speed(self, speed_mps: float) -> None:
         self.speed_mps = speed_mps

@@ -1,4 +1,13 @@
-"""Convention checks of a drive against its truth.
+"""Checks of a drive: whether it makes sense at all, and its conventions against its truth.
+
+:data:`DRIVE_RULES` is the one table of what makes a drive unusable (level
+``error``: every time stamp equal, a span of years; ``run`` and ``evaluate``
+refuse it in one line before any work) and what only deserves a word (level
+``warning``: no sensor rows, a long gap, every tag at one point; said on
+stderr and listed in ``run.json`` and ``results.json``), with the rules the
+reader enforces on every file listed alongside. :func:`drive_checks`
+returns the drive against each rule; ``graphpos info`` prints them as its
+``checks`` section.
 
 Real recordings carry convention errors a user must see before trusting any
 estimate: a truth heading 180 degrees from the direction of travel, a gyro
@@ -21,11 +30,13 @@ errors above.
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Callable
 
 import numpy as np
 
-from graphpos.drive import Channel, Drive
+from graphpos.drive import CHANNEL_NAMES, Channel, Drive
+from graphpos.errors import DriveCheckError
 
 #: Motion below this speed has no usable direction.
 MIN_MOVING_SPEED_MPS = 0.05
@@ -551,3 +562,173 @@ def describe_check(name: str, check: dict[str, Any]) -> str:
                 f"integrated / truth yaw change {_fmt(check['turn_ratio'], '.4f')} "
                 f"({_fmt(check['gyro_yaw_change_deg'], '+.1f')} / {_fmt(check['truth_yaw_change_deg'], '+.1f')} deg)")
     return ""
+
+
+# ---------------------------------------------------------------------------
+# Drive checks: which awkward drives are refused, which are warned about
+# ---------------------------------------------------------------------------
+
+#: A drive spanning longer than this holds channels on different clocks
+#: (seconds since the start next to Unix seconds); the simulator's longest
+#: drive is a day.
+MAX_DRIVE_SPAN_S = 7 * 86400.0
+#: A stretch this long without a row of any sensor is warned about.
+SENSOR_GAP_WARNING_S = 30.0
+#: Channels the estimators read (all but the truth).
+SENSOR_CHANNELS: tuple[str, ...] = tuple(name for name in CHANNEL_NAMES if name != "truth")
+
+
+def _frozen_time(drive: Drive) -> str | None:
+    rows = sum(len(ch) for ch in drive.channels.values())
+    if rows and drive.duration_s == 0:
+        which = "the only row is" if rows == 1 else f"all {rows} rows are"
+        return f"{which} at t_s = {drive.start_s:g} s: no time passes"
+    return None
+
+
+def _time_span(drive: Drive) -> str | None:
+    if drive.duration_s <= MAX_DRIVE_SPAN_S:
+        return None
+    spans = ", ".join(f"{name} {ch.t_s[0]:.6g} .. {ch.t_s[-1]:.6g} s" for name, ch in drive.channels.items() if len(ch))
+    return f"the drive spans {drive.duration_s:.6g} s, over {MAX_DRIVE_SPAN_S:g} s ({spans}): channels on different clocks?"
+
+
+def _channel_frozen(drive: Drive) -> str | None:
+    for name, ch in drive.channels.items():
+        if len(ch) >= 2 and ch.t_s[0] == ch.t_s[-1]:
+            return f"all {len(ch)} rows of channel '{name}' are at t_s = {ch.t_s[0]:g} s"
+    return None
+
+
+def _no_sensor_rows(drive: Drive) -> str | None:
+    if any(drive.has(name) for name in SENSOR_CHANNELS):
+        return None
+    return f"no sensor channel ({', '.join(SENSOR_CHANNELS)}) has rows: no estimator can run on this drive"
+
+
+def _sensor_gap(drive: Drive) -> str | None:
+    present = [drive.channels[name].t_s for name in SENSOR_CHANNELS if drive.has(name)]
+    t_s = np.sort(np.concatenate(present)) if present else np.zeros(0)
+    if t_s.size < 2:
+        return None
+    gap = int(np.argmax(np.diff(t_s)))
+    gap_s = float(t_s[gap + 1] - t_s[gap])
+    if gap_s <= SENSOR_GAP_WARNING_S:
+        return None
+    return f"no sensor row for {gap_s:.1f} s ({t_s[gap]:.3f} .. {t_s[gap + 1]:.3f} s)"
+
+
+def _tags_at_one_point(drive: Drive) -> str | None:
+    tags = drive.tags
+    if len(tags) < 2 or np.ptp(tags.east_m) > 0 or np.ptp(tags.north_m) > 0:
+        return None
+    return (f"all {len(tags)} tags are at one point (east {tags.east_m[0]:g} m, north {tags.north_m[0]:g} m): "
+            "ranges to them cannot fix a position")
+
+
+def _window_outside(drive: Drive) -> str | None:
+    if not any(len(ch) for ch in drive.channels.values()):
+        return None
+    for w in drive.windows:
+        if w.end_s < drive.start_s or w.start_s > drive.end_s:
+            return (f"window '{w.label}' [{w.start_s:g}, {w.end_s:g}] s lies outside the drive "
+                    f"({drive.start_s:g} .. {drive.end_s:g} s)")
+    return None
+
+
+@dataclass(frozen=True)
+class DriveRule:
+    """One rule a drive is checked against (:data:`DRIVE_RULES`).
+
+    Parameters
+    ----------
+    name : str
+        Short key, as ``graphpos info`` and the reports show it.
+    level : {"error", "warning"}
+        ``error``: ``run`` and ``evaluate`` refuse the drive (one line,
+        status 2) before any work; ``warning``: they say it on stderr when
+        done and list it in ``run.json`` / ``results.json``.
+    rule : str
+        What a drive must do, in words.
+    test : callable or None
+        What is wrong with a drive (None when it keeps the rule); None for
+        a rule enforced while the file is read (the file is refused, with
+        the file, channel or field, row and value: :mod:`graphpos.drive`,
+        :mod:`graphpos.io.json_rules`).
+    """
+
+    name: str
+    level: str
+    rule: str
+    test: Callable[[Drive], str | None] | None
+
+
+#: Every rule of a drive, errors first: the one table of what is refused
+#: and what is warned about.
+DRIVE_RULES: tuple[DriveRule, ...] = (
+    DriveRule("values", "error", "every channel field and metadata field holds a value of its JSON type (numbers, "
+              "never strings or booleans), finite where required, in its plausible range, whole for ids, a known "
+              "name where names are fixed", None),
+    DriveRule("time-order", "error", "t_s never decreases within a channel and arrival_s is never before t_s", None),
+    DriveRule("ids", "error", "tag and RSU ids are unique and every reading names a tag or RSU of the map", None),
+    DriveRule("frozen-time", "error", "time passes: the rows of a drive are not all at one t_s", _frozen_time),
+    DriveRule("time-span", "error", f"the drive spans at most {MAX_DRIVE_SPAN_S:g} s", _time_span),
+    DriveRule("sensor-rows", "warning", "some sensor channel has rows", _no_sensor_rows),
+    DriveRule("channel-span", "warning", "the rows of a channel are not all at one t_s", _channel_frozen),
+    DriveRule("sensor-gap", "warning", f"no stretch over {SENSOR_GAP_WARNING_S:g} s without a sensor row", _sensor_gap),
+    DriveRule("tag-spread", "warning", "tags are not all at one point", _tags_at_one_point),
+    DriveRule("window-span", "warning", "every window overlaps the drive's time span", _window_outside),
+)
+
+
+def drive_checks(drive: Drive) -> list[dict[str, Any]]:
+    """The drive against every rule of :data:`DRIVE_RULES`.
+
+    Returns
+    -------
+    list of dict
+        One per rule, in table order: ``name``, ``level``, ``rule``,
+        ``checked`` (``on reading`` for the rules the reader enforces: the
+        drive keeps them, or it would not have been read; else ``on the
+        drive``), ``verdict`` (``ok``, or the level of a broken rule) and
+        ``message`` (what is wrong, None when ok). JSON-serialisable.
+    """
+    results = []
+    for rule in DRIVE_RULES:
+        message = rule.test(drive) if rule.test is not None else None
+        results.append({"name": rule.name, "level": rule.level, "rule": rule.rule,
+                        "checked": "on reading" if rule.test is None else "on the drive",
+                        "verdict": "ok" if message is None else rule.level, "message": message})
+    return results
+
+
+def check_message(result: dict[str, Any], source: str) -> str:
+    """One line of a broken rule (a result of :func:`drive_checks`), naming the file."""
+    return f"{source}: {result['message']} (drive check '{result['name']}')"
+
+
+def require_usable(checks: list[dict[str, Any]], source: str) -> list[str]:
+    """Refuse a drive that breaks a rule of level ``error``; say what it warns of.
+
+    Parameters
+    ----------
+    checks : list of dict
+        The drive's :func:`drive_checks`.
+    source : str
+        The file it was read from, named in every line.
+
+    Returns
+    -------
+    list of str
+        One line per broken rule of level ``warning`` (:func:`check_message`).
+
+    Raises
+    ------
+    DriveCheckError
+        The first broken rule of level ``error``.
+    """
+    broken = [c for c in checks if c["verdict"] != "ok"]
+    for check in broken:
+        if check["verdict"] == "error":
+            raise DriveCheckError(check_message(check, source))
+    return [check_message(c, source) for c in broken]

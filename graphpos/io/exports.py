@@ -23,12 +23,12 @@ from pathlib import Path
 import numpy as np
 
 from graphpos.drive import GeoOrigin
-from graphpos.io.files import atomic_output
+from graphpos.io.outputs import atomic_output
 from graphpos.io.geo import enu_to_geodetic
 from graphpos.estimate import CSV_COLUMNS, Estimate
 
 def write_atomically(path: str | os.PathLike, data: str | bytes) -> Path:
-    """Write ``data`` to ``path`` (folders created) through :func:`graphpos.io.files.atomic_output`."""
+    """Write ``data`` to ``path`` (folders created) through :func:`graphpos.io.outputs.atomic_output`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as stream:

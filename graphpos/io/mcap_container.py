@@ -47,7 +47,7 @@ from mcap.records import (
 from mcap.writer import MCAP0_MAGIC
 
 from graphpos.errors import FileFormatError
-from graphpos.io.files import read_input
+from graphpos.io.files import open_input
 
 #: Uncompressed bytes of message records per chunk.
 CHUNK_SIZE = 4 * 1024 * 1024
@@ -57,7 +57,10 @@ CHUNK_SIZE = 4 * 1024 * 1024
 _MESSAGE_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"), ("log", "<u8"), ("pub", "<u8")])
 _RECORD_HEADER = struct.Struct("<BQ")
 _MESSAGE_CHANNEL = struct.Struct("<H")
-_MAX_CHUNK_BYTES = 2**32
+#: Largest record (and chunk content) read: a larger one is a corrupt file.
+_MAX_RECORD_BYTES = 2**30
+#: A footer record: opcode, length, summary start, summary offset start, summary CRC.
+_FOOTER_BYTES = 1 + 8 + 8 + 8 + 4
 
 
 @dataclass
@@ -216,6 +219,11 @@ class _Corrupt(Exception):
     """Internal: the MCAP byte structure is broken."""
 
 
+#: Records whose content a reader uses; any other record is skipped unread.
+_USED_OPCODES = frozenset({Opcode.HEADER, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.METADATA, Opcode.STATISTICS,
+                           Opcode.MESSAGE, Opcode.CHUNK})
+
+
 class McapContents:
     """What an MCAP file holds: schemas and channels by id, the payloads of
     each channel's messages in file order, metadata records by name (the
@@ -229,7 +237,7 @@ class McapContents:
         self.library = ""
         self.statistics: Statistics | None = None
 
-    def _record(self, opcode: int, body: memoryview) -> None:
+    def _record(self, opcode: int, body: bytes | memoryview) -> None:
         if opcode == Opcode.SCHEMA:
             schema = Schema.read(ReadDataStream(BytesIO(body)))
             self.schemas[schema.id] = schema
@@ -243,9 +251,16 @@ class McapContents:
             self.library = Header.read(ReadDataStream(BytesIO(body))).library
         elif opcode == Opcode.STATISTICS:
             self.statistics = Statistics.read(ReadDataStream(BytesIO(body)))
+        elif opcode == Opcode.MESSAGE:  # outside chunks (inside, _walk_chunk reads them faster)
+            if len(body) < 22:
+                raise _Corrupt("a message record is too short")
+            (cid,) = _MESSAGE_CHANNEL.unpack_from(body)
+            self.payloads.setdefault(cid, []).append(bytes(body[22:]))
+        elif opcode == Opcode.CHUNK:
+            self._walk_chunk(_chunk_data(body))
 
-    def _walk(self, data: bytes | memoryview, in_chunk: bool) -> bool:
-        """Walk the records in ``data``; True when a footer was reached."""
+    def _walk_chunk(self, data: bytes) -> None:
+        """Walk the records of a chunk's content (mostly messages)."""
         pos, end = 0, len(data)
         unpack = _RECORD_HEADER.unpack_from
         channel_of = _MESSAGE_CHANNEL.unpack_from
@@ -257,7 +272,7 @@ class McapContents:
             start = pos + 9
             pos = start + length
             if pos > end:
-                raise _Corrupt(f"a record (opcode {opcode:#x}) runs past the end of the {'chunk' if in_chunk else 'file'}")
+                raise _Corrupt(f"a record (opcode {opcode:#x}) runs past the end of the chunk")
             if opcode == Opcode.MESSAGE:
                 if length < 22:
                     raise _Corrupt("a message record is too short")
@@ -265,21 +280,43 @@ class McapContents:
                 bucket = payloads.get(cid)
                 if bucket is None:
                     bucket = payloads[cid] = []
-                bucket.append(bytes(data[start + 22 : pos]))
-            elif opcode == Opcode.CHUNK and not in_chunk:
-                self._walk(_chunk_data(data[start:pos]), in_chunk=True)
-            elif opcode == Opcode.FOOTER and not in_chunk:
-                if bytes(data[pos : pos + 8]) != MCAP0_MAGIC or pos + 8 != end:
-                    raise _Corrupt("the footer is not followed by the closing magic bytes")
-                return True
+                bucket.append(data[start + 22 : pos])
+            elif opcode == 0 or opcode in (Opcode.CHUNK, Opcode.FOOTER):
+                raise _Corrupt(f"opcode {opcode:#x} inside a chunk")
             else:
-                self._record(opcode, data[start:pos])
-        return False
+                self._record(opcode, memoryview(data)[start:pos])
+
+    def _walk_file(self, stream: BinaryIO, footer_at: int) -> None:
+        """Walk the records from the stream's position to the footer at
+        offset ``footer_at``, reading only the records in
+        :data:`_USED_OPCODES`, one at a time."""
+        pos = stream.tell()
+        while pos < footer_at:
+            header = stream.read(9)
+            if len(header) < 9:
+                raise _Corrupt("a record header is cut off")
+            opcode, length = _RECORD_HEADER.unpack(header)
+            if opcode == 0:
+                raise _Corrupt(f"no record at byte {pos} (opcode 0)")
+            if opcode == Opcode.FOOTER:
+                raise _Corrupt(f"a footer record at byte {pos}, before the end of the file")
+            pos += 9 + length
+            if pos > footer_at:
+                raise _Corrupt(f"a record (opcode {opcode:#x}) runs past the end of the file")
+            if opcode not in _USED_OPCODES:
+                stream.seek(pos)
+                continue
+            if length > _MAX_RECORD_BYTES:
+                raise _Corrupt(f"a record (opcode {opcode:#x}) claims an implausible length of {length} bytes")
+            body = stream.read(length)
+            if len(body) < length:
+                raise _Corrupt("the file ends inside a record")
+            self._record(opcode, body)
 
 
-def _chunk_data(body: memoryview) -> bytes:
+def _chunk_data(body: bytes | memoryview) -> bytes:
     chunk = Chunk.read(ReadDataStream(BytesIO(body)))
-    if chunk.uncompressed_size > _MAX_CHUNK_BYTES:
+    if chunk.uncompressed_size > _MAX_RECORD_BYTES:
         raise _Corrupt("a chunk claims an implausible size")
     if chunk.compression == "zstd":
         data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
@@ -296,22 +333,42 @@ def _chunk_data(body: memoryview) -> bytes:
     return data
 
 
+def _footer_at(stream: BinaryIO, size_bytes: int, path: Path) -> int:
+    """Offset of the footer record, checked with the magic bytes at both
+    ends before anything else is read."""
+    if stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
+        raise FileFormatError(f"{path}: not an MCAP file (no MCAP magic bytes at the start)")
+    footer_at = size_bytes - len(MCAP0_MAGIC) - _FOOTER_BYTES
+    if footer_at >= len(MCAP0_MAGIC):
+        stream.seek(footer_at)
+        tail = stream.read(_FOOTER_BYTES + len(MCAP0_MAGIC))
+        if tail[_FOOTER_BYTES:] == MCAP0_MAGIC and _RECORD_HEADER.unpack_from(tail) == (Opcode.FOOTER, _FOOTER_BYTES - 9):
+            stream.seek(len(MCAP0_MAGIC))
+            return footer_at
+    raise FileFormatError(f"{path}: truncated MCAP file (no footer; was writing interrupted?)")
+
+
 def read_mcap_contents(path: Path) -> McapContents:
     """Every schema, channel, message payload and metadata record of an MCAP
-    file; FileFormatError for a missing, empty, foreign, truncated or
-    corrupt file."""
-    raw = read_input(path)
-    if not raw.startswith(MCAP0_MAGIC):
-        raise FileFormatError(f"{path}: not an MCAP file (no MCAP magic bytes at the start)")
+    file; FileFormatError for a missing, empty, special, foreign, truncated
+    or corrupt file.
+
+    The magic bytes at both ends and the footer are checked first; then the
+    records are read one at a time (a record is at most
+    :data:`_MAX_RECORD_BYTES`), skipping those nothing reads (indexes,
+    attachments), so a broken file is refused without reading it whole.
+    """
     contents = McapContents()
-    try:
-        complete = contents._walk(memoryview(raw)[8:], in_chunk=False)
-    except _Corrupt as exc:
-        raise FileFormatError(f"{path}: corrupt MCAP file: {exc}") from None
-    except Exception as exc:  # noqa: BLE001 - any failure decoding corrupt bytes is a corrupt file
-        raise FileFormatError(f"{path}: corrupt MCAP file ({type(exc).__name__}: {exc})") from None
-    if not complete:
-        raise FileFormatError(f"{path}: truncated MCAP file (no footer; was writing interrupted?)")
+    with open_input(path) as (stream, size_bytes):
+        footer_at = _footer_at(stream, size_bytes, path)
+        try:
+            contents._walk_file(stream, footer_at)
+        except _Corrupt as exc:
+            raise FileFormatError(f"{path}: corrupt MCAP file: {exc}") from None
+        except OSError as exc:
+            raise FileFormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
+        except Exception as exc:  # noqa: BLE001 - any failure decoding corrupt bytes is a corrupt file
+            raise FileFormatError(f"{path}: corrupt MCAP file ({type(exc).__name__}: {exc})") from None
     unknown = set(contents.payloads) - set(contents.channels)
     if unknown:
         raise FileFormatError(f"{path}: corrupt MCAP file: messages on channel id {min(unknown)}, which is never defined")

@@ -27,7 +27,9 @@ A float is written with Python's shortest round-trip representation, so
 float64 values come back bit-exact; NaN is written as ``null`` and +-inf as
 ``1e999``/``-1e999`` (valid JSON that parses back to +-inf). Integer columns
 (``tag_id``, ``rsu_id``) are JSON integers. Unknown fields are ignored on
-reading; a missing or null required field is an error naming the row.
+reading; a missing or null required field is an error naming the row, and
+so is a field of the wrong JSON type (a string, a boolean, an array where a
+number belongs: never coerced, :mod:`graphpos.io.json_rules`).
 
 Viewing topics (Foxglove well-known schemas, written for people, never read
 back):
@@ -49,7 +51,10 @@ Everything that is not a time series is in the metadata record
 ``graphpos.drive``: format version, name, origin, params (JSON), windows,
 tag map with layouts, RSU map. A file without that record (e.g. written by
 another tool) still reads: the drive is named after the file and has empty
-maps and the default origin.
+maps and the default origin. Each key of the record is checked on reading
+against :data:`graphpos.io.json_rules.DRIVE_METADATA_RULES` (JSON types,
+the params graphpos reads) and then by the drive's classes (values); a bad
+one is refused in one line naming the file, the field and the value.
 
 Times: message log and publish times are the measurement time ``t_s`` in
 integer nanoseconds, shifted by ``time_base_s`` (metadata; 0 unless the
@@ -72,10 +77,12 @@ from mcap.records import Channel as McapChannel
 
 from graphpos import __version__
 from graphpos.drive import CHANNEL_SPECS, Channel, Drive, GeoOrigin, RsuMap, TagMap, Window
-from graphpos.errors import ConfigError, DriveError, FileFormatError, GraphposError
+from graphpos.errors import ConfigError, DriveError, FileFormatError
 from graphpos.estimate import Estimate
-from graphpos.io.files import atomic_output
+from graphpos.io.outputs import atomic_output
 from graphpos.io.geo import enu_to_geodetic
+from graphpos.io.json_rules import (DRIVE_METADATA_RULES, ESTIMATE_METADATA_RULES, JsonRuleError, Rule, check_value,
+                                    number_column, number_rows)
 from graphpos.io.mcap_container import McapContents, Topic, read_mcap_contents, write_mcap
 
 #: Format written in the ``graphpos.drive`` metadata record.
@@ -492,49 +499,36 @@ def _batches(payloads: list[bytes], where: str) -> Iterator[tuple[int, list[dict
         yield first, _decode_messages(payloads[first : first + _BATCH_ROWS], where, first)
 
 
-def _column(rows: list[dict], name: str, where: str, first: int) -> np.ndarray:
-    values = [row.get(name) for row in rows]
-    try:
-        return np.array(values, dtype=np.float64).reshape(len(values))
-    except (TypeError, ValueError, OverflowError):
-        for i, v in enumerate(values, start=first):
-            if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float))):
-                raise FileFormatError(f"{where}, message {i}: field '{name}' is not a number ({v!r:.40})") from None
-            try:
-                float(v if v is not None else 0.0)
-            except OverflowError:
-                raise FileFormatError(f"{where}, message {i}: field '{name}' is out of range") from None
-        raise
-
-
-def _cov_column(rows: list[dict], where: str, first: int) -> np.ndarray:
-    flat = [[np.nan] * 4 if row.get("cov_en_m2") is None else row["cov_en_m2"] for row in rows]
-    try:
-        cov = np.array(flat, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        cov = None
-    if cov is None or cov.shape != (len(rows), 4):
-        raise FileFormatError(f"{where}, messages {first}-{first + len(rows) - 1}: field 'cov_en_m2' must be null or 4 numbers")
-    return cov
-
-
 def _decode_columns(payloads: list[bytes], names: Sequence[str], where: str) -> tuple[dict[str, np.ndarray], set[str]]:
     """Float64 columns of the named fields (NaN where a message lacks one),
-    and the names present in at least one message."""
+    and the names present in at least one message.
+
+    Raises
+    ------
+    FileFormatError
+        A message is not a JSON object.
+    JsonRuleError
+        A field holds a value that is not a number (or null), naming the
+        message (row): :func:`graphpos.io.json_rules.number_column`.
+    """
     parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
     present: set[str] = set()
     for first, rows in _batches(payloads, where):
         for name in names:
             if name not in present and any(name in row for row in rows):
                 present.add(name)
-            parts[name].append(_cov_column(rows, where, first) if name == "cov_en_m2" else _column(rows, name, where, first))
+            values = [row.get(name) for row in rows]
+            parts[name].append(number_rows(values, name, first, 4) if name == "cov_en_m2" else number_column(values, name, first))
     empty = {"cov_en_m2": np.zeros((0, 4))}
     return {name: np.concatenate(parts[name]) if parts[name] else empty.get(name, np.zeros(0)) for name in names}, present
 
 
 def _decode_channel(kind: str, payloads: list[bytes], where: str) -> Channel:
     specs = CHANNEL_SPECS[kind]
-    decoded, present = _decode_columns(payloads, [s.name for s in specs], where)
+    try:
+        decoded, present = _decode_columns(payloads, [s.name for s in specs], where)
+    except JsonRuleError as exc:
+        raise DriveError(kind, exc.row, f"field '{exc.field}' {exc.reason}") from None
     columns = {}
     for spec in specs:
         if not spec.required and spec.name not in present:
@@ -564,13 +558,30 @@ def _graphpos_channels(contents: McapContents, path: Path, schema_names: set[str
     return found
 
 
-def _meta_json(meta: dict[str, str], key: str, default: Any, path: Path) -> Any:
-    if key not in meta:
-        return default
-    try:
-        return json.loads(meta[key])
-    except ValueError as exc:
-        raise FileFormatError(f"{path}: metadata '{FORMAT_NAME}' key '{key}' is not valid JSON ({exc})") from None
+def _metadata_values(meta: dict[str, str], rules: dict[str, Rule], where: str) -> dict[str, Any]:
+    """The JSON values of the keys of ``rules`` that the metadata ``meta``
+    holds, each checked against its rule (other keys are ignored).
+
+    Raises
+    ------
+    FileFormatError
+        ``where`` (the file and the record), the key or field, and what is
+        wrong with its value.
+    """
+    values = {}
+    for key, rule in rules.items():
+        if key not in meta:
+            continue
+        try:
+            value = json.loads(meta[key])
+        except (ValueError, RecursionError) as exc:
+            raise FileFormatError(f"{where} '{key}' is not valid JSON ({exc})") from None
+        try:
+            check_value(value, rule, key)
+        except JsonRuleError as exc:
+            raise FileFormatError(f"{where} '{exc.field}' {exc.reason}") from None
+        values[key] = value
+    return values
 
 
 def _drive_from(contents: McapContents, path: Path) -> Drive:
@@ -597,32 +608,20 @@ def _drive_from(contents: McapContents, path: Path) -> Drive:
             channels[kind] = _decode_channel(kind, contents.payloads.pop(channel.id, []), where)
         except DriveError as exc:
             raise exc.with_source(str(path)) from None
+    values = _metadata_values(meta, DRIVE_METADATA_RULES, f"{path}: metadata")
     try:
-        origin = GeoOrigin(**_meta_json(meta, "origin", {}, path))
-        tags_json = _meta_json(meta, "tags", None, path)
-        rsus_json = _meta_json(meta, "rsus", None, path)
-        windows_json = _meta_json(meta, "windows", [], path)
-        params = _meta_json(meta, "params", {}, path)
-        if not isinstance(params, dict):
-            raise FileFormatError(f"{path}: metadata 'params' is not a JSON object")
-        tags = TagMap(**tags_json) if tags_json is not None else TagMap.empty()
-        rsus = RsuMap(**rsus_json) if rsus_json is not None else RsuMap.empty()
-        windows = tuple(Window(**w) for w in windows_json)
-        return Drive(
-            name=str(meta.get("name", path.stem)),
-            channels=channels,
-            tags=tags,
-            rsus=rsus,
-            windows=windows,
-            origin=origin,
-            params=params,
-        )
+        origin = GeoOrigin(**values.get("origin", {}))
+        tags = TagMap(**values["tags"]) if "tags" in values else TagMap.empty()
+        rsus = RsuMap(**values["rsus"]) if "rsus" in values else RsuMap.empty()
+        windows = tuple(Window(**w) for w in values.get("windows", []))
+    except DriveError as exc:  # a value out of its bounds (graphpos.drive): the file's metadata is at fault
+        row = f", row {exc.row}" if exc.row is not None else ""
+        raise FileFormatError(f"{path}: metadata '{exc.channel}'{row}: {exc.reason}") from None
+    try:
+        return Drive(name=meta.get("name", path.stem), channels=channels, tags=tags, rsus=rsus, windows=windows,
+                     origin=origin, params=values.get("params", {}))
     except DriveError as exc:
         raise exc.with_source(str(path)) from None
-    except GraphposError:
-        raise
-    except (TypeError, ValueError, AttributeError) as exc:
-        raise FileFormatError(f"{path}: metadata '{FORMAT_NAME}' is malformed ({exc})") from None
 
 
 def read_drive(path: str | os.PathLike) -> Drive:
@@ -646,14 +645,17 @@ def _estimate_from(channel: McapChannel, payloads: list[bytes], path: Path) -> E
     meta = channel.metadata
     name = meta.get("estimator") or channel.topic.rsplit("/", 1)[-1]
     present = set(filter(None, meta.get("fields", ",".join(_OPTIONAL_ESTIMATE_FIELDS)).split(",")))
-    decoded, _ = _decode_columns(payloads, _ESTIMATE_FIELDS, where)
+    try:
+        decoded, _ = _decode_columns(payloads, _ESTIMATE_FIELDS, where)
+    except JsonRuleError as exc:
+        raise FileFormatError(f"{where}, message {exc.row}: field '{exc.field}' {exc.reason}") from None
     cols: dict[str, Any] = {
         field: decoded[field] if field in ("t_s", "east_m", "north_m") or field in present else None for field in _ESTIMATE_FIELDS
     }
     if cols["cov_en_m2"] is not None:
         cols["cov_en_m2"] = cols["cov_en_m2"].reshape(-1, 2, 2)
+    diagnostics = _metadata_values(meta, ESTIMATE_METADATA_RULES, f"{where}: channel metadata").get("diagnostics", {})
     try:
-        diagnostics = json.loads(meta.get("diagnostics", "{}"))
         rate_hz = float(meta.get("rate_hz", "nan"))
         wall_time_s = float(meta.get("wall_time_s", "nan"))
     except ValueError as exc:

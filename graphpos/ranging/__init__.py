@@ -6,7 +6,7 @@ drive, or a model saved by ``graphpos ranging fit`` and read with
 :func:`load_range_model`.
 """
 
-from graphpos.ranging.drive_models import calibrated_model, default_range_model, fit_from_drive, true_ranges_m
+from graphpos.ranging.drive_models import calibrated_model, default_range_model, fit_from_drive, ranges_by_field, reading_models, true_ranges_m
 from graphpos.ranging.lssvm import LssvmRangeModel
 from graphpos.ranging.model import LinearCalibration, RangeModel, load_range_model
 from graphpos.ranging.propagation import PropagationRangeModel
@@ -18,6 +18,8 @@ __all__ = [
     "PropagationRangeModel",
     "load_range_model",
     "default_range_model",
+    "reading_models",
+    "ranges_by_field",
     "calibrated_model",
     "fit_from_drive",
     "true_ranges_m",

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from graphpos.drive import Drive
+from graphpos.drive import Channel, Drive
 from graphpos.io.checks import true_ranges_m as truth_distances_m
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.ranging.calibration_data import simulate_collection
@@ -67,18 +67,87 @@ def _calibrated(environment: str, kind: str, seed: int) -> RssRangeModel:
     return model.fit_sigma(held_out.readings.ravel(), held_out.reading_distance_m)
 
 
+#: The ``rfid`` fields a range model reads: a range the radio reports, and RSS.
+READING_FIELDS = ("range_m", "rss")
+
+
+def default_model_for(drive: Drive, field: str) -> RangeModel:
+    """The drive's default range model for readings of one field.
+
+    ``range_m`` (ranges reported by the radio) -> identity
+    :class:`LinearCalibration` with 1-sigma ``0.3 m + 5 % of the range``
+    (:data:`DEFAULT_RANGE_SIGMA0_M`, :data:`DEFAULT_RANGE_SIGMA_SLOPE`);
+    ``rss`` -> LSSVM calibrated in ``drive.params["rss_environment"]``
+    (default ``"tunnel"``).
+    """
+    if field == "range_m":
+        return LinearCalibration(sigma0_m=DEFAULT_RANGE_SIGMA0_M, sigma_slope=DEFAULT_RANGE_SIGMA_SLOPE)
+    return calibrated_model(str(drive.params.get("rss_environment", "tunnel")), "lssvm")
+
+
 def default_range_model(drive: Drive) -> RangeModel:
     """The range model a drive is used with when the user gives none.
 
-    Ranges reported by the radio -> identity :class:`LinearCalibration` with
-    1-sigma ``0.3 m + 5 % of the range`` (:data:`DEFAULT_RANGE_SIGMA0_M`,
-    :data:`DEFAULT_RANGE_SIGMA_SLOPE`); RSS -> LSSVM calibrated in
-    ``drive.params["rss_environment"]`` (default ``"tunnel"``). A drive
-    without RFID readings gets the identity too.
+    The default model (:func:`default_model_for`) of ``range_m`` when the
+    radio reports ranges, else of ``rss`` when the readings carry RSS. A
+    drive without RFID readings gets the identity too.
     """
-    if not drive.has("rfid") or drive.reports_ranges or not np.isfinite(drive.rfid.rss).any():
-        return LinearCalibration(sigma0_m=DEFAULT_RANGE_SIGMA0_M, sigma_slope=DEFAULT_RANGE_SIGMA_SLOPE)
-    return calibrated_model(str(drive.params.get("rss_environment", "tunnel")), "lssvm")
+    rss_only = drive.has("rfid") and not drive.reports_ranges and np.isfinite(drive.rfid.rss).any()
+    return default_model_for(drive, "rss" if rss_only else "range_m")
+
+
+def reading_models(drive: Drive, model: RangeModel, who: str) -> dict[str, RangeModel]:
+    """The range model of each field the drive's RFID readings carry, ``model``'s own first.
+
+    Both fields are optional in a reading, and a drive may mix readings
+    with a range and readings with RSS only (a radio that reports a range
+    only when its ranging exchange succeeds). ``model`` reads its own field
+    (``model.input_column``); readings without a value there but with one
+    in the other field go through the drive's default model for that
+    field (:func:`default_model_for`). Use with :func:`ranges_by_field`.
+
+    Raises
+    ------
+    ConfigError
+        Naming ``who`` (the estimator) when no reading carries ``model``'s
+        field: the model the user chose cannot be applied to this drive.
+    """
+    models = {model.input_column: model}
+    if not drive.has("rfid"):
+        return models
+    rfid = drive.rfid
+    own = np.isfinite(rfid[model.input_column])
+    if not own.any():
+        raise ConfigError(
+            f"{who}: range model '{model.kind}' reads '{model.input_column}', which drive '{drive.name}' does not carry in its rfid readings"
+        )
+    for field in READING_FIELDS:
+        if field not in models and (~own & np.isfinite(rfid[field])).any():
+            models[field] = default_model_for(drive, field)
+    return models
+
+
+def ranges_by_field(models: dict[str, RangeModel], rfid: Channel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Distance, 1-sigma and field of each reading, from the first field of ``models`` the reading carries.
+
+    Returns
+    -------
+    distance_m, sigma_m : arrays
+        NaN for a reading that carries none of the fields (or that its
+        model cannot convert).
+    field : array of int
+        Index into ``models`` of the field each reading was taken from,
+        -1 for none.
+    """
+    n = len(rfid)
+    distance, sigma, field = np.full(n, np.nan), np.full(n, np.nan), np.full(n, -1)
+    for i, (name, model) in enumerate(models.items()):
+        rows = (field < 0) & np.isfinite(rfid[name])
+        if rows.any():
+            distance[rows] = model.predict_distance_m(rfid[name][rows])
+            sigma[rows] = model.predict_sigma_m(distance[rows])
+            field[rows] = i
+    return distance, sigma, field
 
 
 def true_ranges_m(drive: Drive) -> np.ndarray:

@@ -16,7 +16,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from graphpos.errors import FileFormatError  # noqa: E402
+from graphpos.io.outputs import atomic_output  # noqa: E402
 from graphpos.ranging.calibration_data import simulate_collection  # noqa: E402
 from graphpos.ranging.drive_models import calibrated_model  # noqa: E402
 from graphpos.ranging.table1 import MODEL_KINDS  # noqa: E402
@@ -57,8 +57,7 @@ def plot_calibration(seed: int, path: str | os.PathLike) -> None:
     fig.suptitle(f"RSS-distance fits (song2016 Fig. 6) and distance errors on held-out readings (Fig. 7), seed {seed}")
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise FileFormatError(f"{path}: cannot write the figure ({exc.strerror or exc})") from None
+        with atomic_output(path) as stream:
+            fig.savefig(stream, format="png", dpi=110)
     finally:
         plt.close(fig)

@@ -19,7 +19,8 @@ import numpy as np
 
 from graphpos.drive import Channel
 from graphpos.errors import ConfigError, FileFormatError
-from graphpos.io.files import atomic_output, read_input
+from graphpos.io.files import read_input
+from graphpos.io.outputs import atomic_output
 
 
 class RangeModel(ABC):

@@ -42,6 +42,7 @@ from pathlib import Path
 from typing import Any
 
 from graphpos.errors import ConfigError, FileFormatError
+from graphpos.io.files import read_input
 from graphpos.sim.rss import ENVIRONMENTS
 
 #: Highest sensor rate accepted (a guard against drives too large to build).
@@ -544,13 +545,10 @@ def load_config(path: str | Path) -> dict[str, Any]:
     Raises
     ------
     FileFormatError
-        The file is missing, unreadable or not valid TOML.
+        The file is missing, not a regular file, unreadable or not valid TOML.
     """
     p = Path(path)
-    try:
-        data = p.read_bytes()
-    except OSError as exc:
-        raise FileFormatError(f"{p}: cannot read config file ({exc.strerror or exc})") from None
+    data = read_input(p, allow_empty=True)
     try:
         return tomllib.loads(data.decode("utf-8"))
     except UnicodeDecodeError:

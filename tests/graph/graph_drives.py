@@ -140,3 +140,92 @@ def truth_at(drive: Drive, t_s: np.ndarray) -> np.ndarray:
 
 def position_errors(drive: Drive, est) -> np.ndarray:
     return np.linalg.norm(est.position - truth_at(drive, est.t_s), axis=1)
+
+
+def errors(drive: Drive, est) -> np.ndarray:
+    """Position errors of the outputs within the truth's time span (late readings can outlast it)."""
+    within = est.t_s <= drive.truth.t_s[-1]
+    return np.linalg.norm(est.position[within] - truth_at(drive, est.t_s[within]), axis=1)
+
+
+def rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e**2)))
+
+
+def run(key: str, drive: Drive, initial_pose=None, model=None, spoil=None, **config):
+    """Run an estimator on the drive as it sees it (``drive.without_truth()``).
+
+    ``key``: ``graph-name/parameterisation`` (the synthetic drive's graph
+    config, with ``config`` on top) or a filter's name; ``model``: the range
+    model (default: the synthetic drive's; ``"drive"``: the drive's own default).
+    ``spoil``: feed the measurements one by one (the online loop), each
+    through ``spoil(index, measurement) -> measurement`` (values a drive
+    would refuse, as a live feed may bring them).
+    """
+    from filters import ESTIMATORS as FILTERS
+    from graphpos.graph import ESTIMATORS as GRAPHS
+    from graphpos.graph.config import GraphConfig
+
+    model = range_model() if model is None else (None if model == "drive" else model)
+    name, _, parameterisation = key.partition("/")
+    if parameterisation:
+        est = GRAPHS[name](GraphConfig(**{**SYNTHETIC_MODEL, "parameterisation": parameterisation, **config}), range_model=model, initial_pose=initial_pose)
+    else:
+        est = FILTERS[name](range_model=model, initial_pose=initial_pose)
+    if spoil is None:
+        return est.run(drive.without_truth())
+    seen = est.prepare(drive.without_truth())
+    est.start(seen)
+    for i, m in enumerate(seen.measurements(est.channels_used(seen), by=est.merge_by)):
+        est.process(spoil(i, m))
+    return est.finish()
+
+
+# -- awkward but valid drives (issue 14) -----------------------------------------------------------------------
+#: Every sensor channel (the truth is not a sensor).
+SENSORS = ("imu", "wheel", "compass", "rfid", "rsu", "gnss")
+
+
+def paused(drive: Drive, at_s: float, pause_s: float) -> Drive:
+    """Every channel, the truth included, from ``at_s`` on shifted ``pause_s`` later: a recording paused
+    while the vehicle stood (its motion stops and resumes with no odometry of it)."""
+    channels = {}
+    for name, ch in drive.channels.items():
+        cols = dict(ch.columns)
+        later = cols["t_s"] >= at_s
+        for c in ("t_s", "arrival_s"):
+            if c in cols:
+                cols[c] = np.where(later, cols[c] + pause_s, cols[c])
+        channels[name] = Channel(name, cols)
+    return drive.replace(channels=channels)
+
+
+def without_span(drive: Drive, from_s: float, to_s: float, channels: tuple[str, ...] = SENSORS) -> Drive:
+    """The rows of ``channels`` taken in ``[from_s, to_s)`` lost: the vehicle drives on unobserved by them."""
+    return drive.replace(channels={n: ch.select(~((ch.t_s >= from_s) & (ch.t_s < to_s))) if n in channels else ch
+                                   for n, ch in drive.channels.items()})
+
+
+def late_rfid(drive: Drive, delay_s: float, fraction: float, seed: int = 0) -> tuple[Drive, np.ndarray]:
+    """A random ``fraction`` of the RFID readings arriving ``delay_s`` after they were taken; the drive and the late rows."""
+    rfid = drive.rfid
+    late = np.random.default_rng(seed).random(len(rfid)) < fraction
+    return drive.replace(channels={**drive.channels, "rfid": rfid.replace(arrival_s=np.where(late, rfid.t_s + delay_s, rfid.arrival_s))}), late
+
+
+def with_nan(drive: Drive, channel: str, column: str, rows) -> Drive:
+    """The drive with NaN in ``rows`` of one (optional) column."""
+    ch = drive.channels[channel]
+    values = np.array(ch[column])
+    values[np.asarray(rows, dtype=np.int64)] = np.nan
+    return drive.replace(channels={**drive.channels, channel: ch.replace(**{column: values})})
+
+
+def mixed_readings(drive: Drive, rss_only: np.ndarray, seed: int = 0) -> Drive:
+    """The RFID readings of rows ``rss_only`` with an RSS (the simulated tunnel's law) and no range; the others a range only."""
+    from graphpos.sim.rss import ENVIRONMENTS
+
+    rfid = drive.rfid
+    rss = ENVIRONMENTS["tunnel"].sample_rss(rfid.true_range_m, np.random.default_rng(seed))
+    return drive.replace(channels={**drive.channels, "rfid": rfid.replace(rss=np.where(rss_only, rss, np.nan),
+                                                                             range_m=np.where(rss_only, np.nan, rfid.range_m))})

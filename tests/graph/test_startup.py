@@ -25,12 +25,10 @@ from functools import lru_cache
 
 import numpy as np
 import pytest
-from graph_drives import SYNTHETIC_MODEL, range_model, synthetic_drive, truth_at
+from graph_drives import errors, rms, run, synthetic_drive, truth_at
 
-from filters import ESTIMATORS as FILTERS
 from graphpos.drive import Drive
 from graphpos.graph import ESTIMATORS as GRAPHS
-from graphpos.graph.config import GraphConfig
 from graphpos.ignition import StartPose, between_walls
 
 SONG2014 = ("ekf-ca", "stekf-ca", "imm-stekf")
@@ -64,15 +62,6 @@ def keys_for(drive: Drive, known: dict[str, str] | None = None) -> list:
     return [xfail(k, known[k]) if k in known else k for k in out]
 
 
-def run(key: str, drive: Drive, initial_pose: StartPose | None = None):
-    name, _, parameterisation = key.partition("/")
-    if parameterisation:
-        est = GRAPHS[name](GraphConfig(**SYNTHETIC_MODEL, parameterisation=parameterisation), range_model=range_model(), initial_pose=initial_pose)
-    else:
-        est = FILTERS[name](range_model=range_model(), initial_pose=initial_pose)
-    return est.run(drive.without_truth())
-
-
 def without(drive: Drive, *channels: str) -> Drive:
     return drive.replace(channels={k: v for k, v in drive.channels.items() if k not in channels})
 
@@ -80,15 +69,6 @@ def without(drive: Drive, *channels: str) -> Drive:
 def start_time(est) -> float | None:
     start = est.diagnostics.get("start")
     return None if not start else start.get("t_s")
-
-
-def errors(drive: Drive, est) -> np.ndarray:
-    within = est.t_s <= drive.truth.t_s[-1]  # late readings can outlast the truth
-    return np.linalg.norm(est.position[within] - truth_at(drive, est.t_s[within]), axis=1)
-
-
-def rms(e: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(e**2)))
 
 
 def check_output(key: str, drive: Drive, est) -> None:

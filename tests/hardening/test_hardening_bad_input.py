@@ -60,13 +60,14 @@ ABSURD_COLUMN = {**BAD_COLUMN, "rfid": "rss"}
 
 
 # -- making bad files -------------------------------------------------------------------------------------------
-def rewrite(src: Path, dst: Path, edit) -> Path:
+def rewrite(src: Path, dst: Path, edit, metadata=None) -> Path:
     """Copy an MCAP drive message by message; ``edit(channel, row, payload)`` returns the new payload dict,
-    a list of dicts (several messages), or None (drop the message). Maps and windows are kept."""
+    a list of dicts (several messages), or None (drop the message). Maps and windows are kept, or
+    ``metadata(record name, values)`` returns the values of each metadata record."""
     with open(src, "rb") as f:
         reader = make_reader(f)
         summary = reader.get_summary()
-        metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+        records = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
         messages = [(ch.id, msg.log_time, msg.data) for _, ch, msg in reader.iter_messages(log_time_order=True)]
     rows: dict[int, int] = {}
     with open(dst, "wb") as out:
@@ -75,8 +76,8 @@ def rewrite(src: Path, dst: Path, edit) -> Path:
         schemas = {sid: writer.register_schema(s.name, s.encoding, s.data) for sid, s in summary.schemas.items()}
         channels = {cid: writer.register_channel(c.topic, c.message_encoding, schemas[c.schema_id], dict(c.metadata))
                     for cid, c in summary.channels.items()}
-        for name, meta in metadata:
-            writer.add_metadata(name, meta)
+        for name, meta in records:
+            writer.add_metadata(name, metadata(name, meta) if metadata is not None else meta)
         for cid, log_time, data in messages:
             topic = summary.channels[cid].topic.strip("/")
             row = rows.get(cid, 0)

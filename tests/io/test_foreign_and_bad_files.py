@@ -138,9 +138,9 @@ def test_graphpos_schema_in_another_encoding(tmp_path):
     [
         ([b'{"t_s": 0, "speed_mps": 1}', b'{"t_s": 1, "speed_mps": '], FileFormatError, r"topic /wheel, message 1: not valid JSON"),
         ([b'{"t_s": 0, "speed_mps": 1}', b'[0, 1]'], FileFormatError, r"topic /wheel, message 1: expected a JSON object"),
-        ([b'{"t_s": 0, "speed_mps": "fast"}'], FileFormatError, r"message 0: field 'speed_mps' is not a number"),
-        ([b'{"t_s": 0, "speed_mps": [1, 2]}'], FileFormatError, r"message 0: field 'speed_mps' is not a number"),
-        ([b'{"t_s": 0, "speed_mps": 1' + b"0" * 400 + b"}"], FileFormatError, r"field 'speed_mps' is out of range"),
+        ([b'{"t_s": 0, "speed_mps": "fast"}'], DriveError, r"channel 'wheel', row 0: field 'speed_mps' is a string \"fast\", not a number"),
+        ([b'{"t_s": 0, "speed_mps": [1, 2]}'], DriveError, r"row 0: field 'speed_mps' is an array \[1, 2\], not a number"),
+        ([b'{"t_s": 0, "speed_mps": 1' + b"0" * 400 + b"}"], DriveError, r"row 0: field 'speed_mps' is a number 10+\.\.\., out of range"),
         ([b'{"t_s": 0, "speed_mps": 1}', b'{"t_s": 1}'], DriveError, r"channel 'wheel', row 1: field 'speed_mps' is missing"),
         ([b'{"t_s": 0, "speed_mps": 1}', b'{"t_s": 1, "speed_mps": null}'], DriveError, r"row 1: field 'speed_mps' is missing, null"),
         ([b'{"t_s": 0, "speed_mps": 1}', b'{"t_s": 1, "speed_mps": 1e999}'], DriveError, r"row 1: speed_mps is inf"),
@@ -163,10 +163,10 @@ def test_unknown_tag_and_bad_metadata(tmp_path):
         read_drive(path)
     wheel = {"/wheel": ("graphpos.wheel", "json", rows(t_s=[0.0], speed_mps=[1.0]))}
     for meta, message in [
-        ({"tags": "{not json"}, "key 'tags' is not valid JSON"),
-        ({"tags": '{"tag_id": [1]}'}, "metadata 'graphpos.drive' is malformed"),
-        ({"windows": '[{"label": "x", "start_s": 5, "end_s": 1}]'}, "channel 'windows': window 'x' has bad bounds"),
-        ({"params": "[1, 2]"}, "metadata 'params' is not a JSON object"),
+        ({"tags": "{not json"}, "metadata 'tags' is not valid JSON"),
+        ({"tags": '{"tag_id": [1]}'}, r"metadata 'tags\.east_m' is missing"),
+        ({"windows": '[{"label": "x", "start_s": 5, "end_s": 1}]'}, "metadata 'windows': window 'x' has bad bounds"),
+        ({"params": "[1, 2]"}, r"metadata 'params' is an array \[1, 2\], not an object"),
         ({"format": "graphpos.drive/9"}, "unsupported drive format 'graphpos.drive/9'"),
     ]:
         write_foreign(path, wheel, metadata=meta)
