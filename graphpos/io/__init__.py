@@ -5,7 +5,9 @@
   (and optionally estimates) per MCAP file, lossless, viewable in Foxglove
   (:mod:`graphpos.io.mcap_drive` documents the layout).
 - :func:`graphpos.io.plaza.import_plaza`: the CMU Plaza ranging datasets.
-- :func:`graphpos.io.geo.enu_to_geodetic`: local east/north -> lat/lon.
+- :func:`graphpos.io.rosbag.import_rosbag`, :func:`graphpos.io.csvlog.import_csv`:
+  ROS bags and CSV logs through a mapping file (:mod:`graphpos.io.mapping`).
+- :func:`graphpos.io.geo.enu_to_geodetic` / ``geodetic_to_enu``: local east/north <-> lat/lon (WGS84, pymap3d).
 """
 
 from graphpos.io.mcap_drive import read_drive, read_estimates, read_mcap, write_drive

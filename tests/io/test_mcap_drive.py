@@ -116,7 +116,8 @@ def test_geodetic_conversion_scale():
     # 1 km north is about 1/111.1 deg at 45 deg; 1 km east is that over cos(45 deg)
     assert lat[2] - lat[0] == pytest.approx(1000 / 111132.0, rel=2e-3)
     assert lon[1] - lon[0] == pytest.approx(1000 / (111412.0 * np.cos(np.radians(45))), rel=2e-3)
-    assert lat[1] == origin.lat_deg and lon[2] == origin.lon_deg
+    # ENU tangent plane (tests/io/test_geo.py): 1 km east lies 8 cm south of the origin's parallel
+    assert lat[1] == pytest.approx(origin.lat_deg, abs=1e-6) and lon[2] == pytest.approx(origin.lon_deg, abs=1e-12)
 
 
 def test_write_is_atomic_and_replaces(tmp_path, drive):
