@@ -42,6 +42,11 @@ graph integrates zero body acceleration with a wide noise density
 the wheel factor carries the velocity until the accelerometers are back.
 Non-finite samples of any sensor are skipped and counted per channel and
 field (``diagnostics["non_finite"]``).
+
+Yaw rates are first corrected by the bias seen at standstills so far
+(:class:`graphpos.standstill.StandstillGyroBias`, as in the filters), then
+by the learnt or given sensor profile (:attr:`GraphBuilder.corrections`),
+whose gyro bias is what remains after the standstill correction.
 """
 
 from __future__ import annotations
@@ -60,6 +65,7 @@ from graphpos.profile import SensorProfile
 from graphpos.graph.models import GRAVITY_MPS2, KeyframeState, robust
 from graphpos.graph.odometry import OdometryDelta, PlanarOdometry
 from graphpos.ranging.drive_models import ranges_by_field
+from graphpos.standstill import StandstillGyroBias
 
 #: A landmark key is reused for sightings at most this far apart, s.
 LANDMARK_LIFETIME_S = 3.0
@@ -231,7 +237,9 @@ class GraphBuilder:
                                    config=IgnitionConfig(compass_sigma_rad=config.compass_sigma_rad, max_yaw_sigma_rad=START_MAX_YAW_SIGMA_RAD))
         self.ignition: Ignition | None = None  # a fresh one for each track (_begin_segment)
         self._start: StartState | None = None
-        #: Corrections of the incoming yaw rates and wheel speeds learnt online (:meth:`recalibrate`).
+        #: The yaw-rate bias seen at standstills, taken off every yaw rate first (shared with the filters).
+        self.standstill = StandstillGyroBias()
+        #: Corrections of the incoming yaw rates and wheel speeds learnt online (:meth:`recalibrate`), after the standstill's.
         self.corrections = SensorProfile()
         # history for batch solves / scale estimation
         self.fixed_factors = gtsam.NonlinearFactorGraph()
@@ -330,6 +338,7 @@ class GraphBuilder:
         if m.channel == "wheel":
             if self.tracking:
                 self.odometry.advance(m.t_s)
+            self.standstill.speed(m.t_s, m.values["speed_mps"])
             if math.isfinite(m.values["speed_mps"]):
                 speed = m.values["speed_mps"] / self.corrections.wheel_scale
                 self.odometry.set_speed(speed)
@@ -346,7 +355,8 @@ class GraphBuilder:
             if self._preintegrating:
                 self._integrate_imu(m.t_s)
         if math.isfinite(v["yaw_rate_radps"]):
-            yaw_rate = (v["yaw_rate_radps"] - self.corrections.gyro_bias_radps) / self.corrections.yaw_rate_scale
+            raw = self.standstill.yaw_rate(m.t_s, v["yaw_rate_radps"])
+            yaw_rate = (raw - self.corrections.gyro_bias_radps) / self.corrections.yaw_rate_scale
             self.odometry.set_yaw_rate(yaw_rate)
             self._gyro_radps = np.array([0.0, 0.0, yaw_rate])
             if self.tracking and not self.anchored:

@@ -134,8 +134,10 @@ class _GraphEstimator(Estimator):
         times = np.asarray(self.update_times_s) if self.update_times_s else np.zeros(1)
         if not self.builder.started:
             self.builder.diagnostics["not_started"] = NOT_STARTED
+        standstill = self.builder.standstill
         diagnostics = {
             **self.builder.diagnostics,
+            **({"standstill": standstill.describe()} if standstill.standstills else {}),
             "parameterisation": self.model.name,
             "keyframes": self.builder.last_keyframe + 1,
             "update_ms_mean": float(times.mean() * 1e3),
@@ -169,8 +171,9 @@ class GraphIsam2(_GraphEstimator):
     """Online iSAM2: one update per keyframe, causal output (``final``: smoothed).
 
     Without a sensor profile it learns one online (``config.learn_online``):
-    :data:`LEARN_FIRST_S` after the start, and then each time the time since
-    the start has doubled, the sensor profile is fitted to the trajectory
+    once the track (the held keyframes before the start included) spans
+    :data:`LEARN_FIRST_S`, at the start when it already does, and then each
+    time the track's span has doubled, the sensor profile is fitted to the trajectory
     so far solved with its heading loosened as in graph-batch's first solve
     (:func:`~graphpos.graph.calibration.fit_profile`,
     and the range scale by :func:`~graphpos.graph.calibration.estimate_range_scale`
@@ -194,9 +197,11 @@ class GraphIsam2(_GraphEstimator):
         start = self.builder.diagnostics.get("anchor_keyframe")
         if out and self._next_learn_s is not None and start is not None:
             k = self.builder.last_keyframe  # every closed keyframe is in the smoother now
-            if (k - start) * self.builder.period_s >= self._next_learn_s:
+            received_s = k * self.builder.period_s  # the held track before the start is data too
+            if received_s >= self._next_learn_s:
                 self._learn(k)
-                self._next_learn_s *= 2.0
+                while received_s >= self._next_learn_s:
+                    self._next_learn_s *= 2.0
         return out
 
     def _learn(self, k: int) -> None:
@@ -439,7 +444,7 @@ class GraphBatch(_GraphEstimator):
         self.builder.diagnostics["wheel_scale"] = self.builder.wheel_scale
 
 
-#: graph-isam2's first online calibration, s after the start (then at 2x, 4x ... this).
+#: graph-isam2's first online calibration: once its track (held keyframes included) spans this many s (then 2x, 4x ...).
 LEARN_FIRST_S = 15.0
 
 #: Span of keyframes per iSAM2 update in graph-batch's seeding pass, s.
