@@ -6,8 +6,13 @@ Output folder layout::
     report.md, report.html    tables and plots (the HTML embeds the plots)
     <drive>/trajectories.png, error_vs_time.png, error_cdf.png, speed_error.png
     <drive>/<estimator>.tum|.kml|.geojson|.csv   per-estimator exports
+    <drive>/truth.tum|.kml|.geojson|.csv         the truth's (evo_ape tum truth.tum <estimator>.tum)
     <drive>/all_estimates.kml  every track in one Google Earth file
-    <drive>/<drive>.mcap       the drive, its truth and every estimate (Foxglove)
+    <drive>/estimates.mcap     the drive, its truth and every estimate (Foxglove)
+    <drive>/estimates_ros2/    a ROS 2 bag: every estimate and the truth as nav_msgs/Odometry
+
+The files of ``<drive>/`` but the plots are :func:`graphpos.io.exports.write_exports`,
+the same as ``graphpos run`` writes.
 
 ``<drive>`` and ``<estimator>`` are the names made file-safe
 (:func:`graphpos.io.outputs.safe_name`); two drives of one name get
@@ -33,9 +38,9 @@ from eval.metrics import WHOLE
 from eval.report import Report, Section, fmt, write_json
 from graphpos.drive import Drive
 from graphpos.errors import MissingChannelError, naming_file
-from graphpos.io import read_drive, write_drive
+from graphpos.io import read_drive
 from graphpos.io.checks import drive_checks
-from graphpos.io.exports import export_estimate, kml_text, write_atomically
+from graphpos.io.exports import write_exports
 from graphpos.io.outputs import output_folder, safe_name
 from graphpos.registry import start_pose_record
 
@@ -123,8 +128,9 @@ def wheel_line(results: list[JobResult], window: str) -> str | None:
 
 
 def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], sub: Path,
-                       layout: str | None = None, exports: bool = True) -> Section:
-    """Tables, plots and exports of one drive (files in the folder ``sub``)."""
+                       layout: str | None = None, bags: bool = True) -> Section:
+    """Tables, plots and exports of one drive (files in the folder ``sub``; ``bags``: see
+    :func:`graphpos.io.exports.write_exports`)."""
     sec = report.section(f"Drive {drive.name}")
     sec.text(f"Duration {drive.duration_s:.1f} s; channels {', '.join(drive.channels)}; "
              f"{len(drive.tags)} tags, {len(drive.rsus)} RSUs" + (f"; layout {layout}" if layout else "") + ".")
@@ -148,14 +154,13 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
         speed = plots.speed_error(drive, estimates, sub / "speed_error.png")
         if speed:
             sec.figure(speed)
-        if exports:
-            for est in estimates:
-                export_estimate(est, drive.origin, sub, safe_name(est.name))
-            write_atomically(sub / "all_estimates.kml", kml_text(estimates, drive.origin))
-            sec.text(f"Exports in {sub.name}/: <estimator>.tum (evo), .kml (Google Earth), .geojson, .csv; "
-                     "all_estimates.kml holds every track.")
     else:
-        sec.text("No estimator gave a track on this drive (see the table and Failures): no plots or exports.")
+        sec.text("No estimator gave a track on this drive (see the table and Failures): no plots.")
+    write_exports(sub, drive, [r.estimate for r in results if r.ok and r.estimate is not None], bags=bags)
+    sec.text(f"Exports in {sub.name}/: <estimator>.tum (evo), .kml (Google Earth), .geojson, .csv and the same of "
+             "the truth (truth.tum ...); all_estimates.kml holds every track"
+             + ("; estimates.mcap (Foxglove) and estimates_ros2/ (a ROS 2 bag of nav_msgs/Odometry) hold the drive "
+                "and every estimate." if bags else "."))
     return sec
 
 
@@ -174,7 +179,8 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
     folder : Path
     layout, range_model, workers, scheduler : see :class:`eval.execution.Job` and :func:`eval.execution.execute`.
     mcap : bool
-        Write the combined MCAP per drive.
+        Write the MCAP file and the ROS 2 bag of each drive
+        (:func:`graphpos.io.exports.write_exports`).
     settings : dict, optional
         ``{estimator name: {key: value text}}`` changes to the estimators'
         default configs (:mod:`graphpos.settings`); stated in the report.
@@ -223,11 +229,7 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
                 copy += 1
                 stem = f"{base}-{copy}"
             used.add(stem)
-            add_drive_sections(report, drive, mine, out / stem, layout=layout)
-            if mcap:
-                # graphpos.io.write_drive writes atomically (the folder exists only if a run gave figures)
-                (out / stem).mkdir(parents=True, exist_ok=True)
-                write_drive(out / stem / f"{stem}.mcap", drive, estimates=[r.estimate for r in mine if r.ok])
+            add_drive_sections(report, drive, mine, out / stem, layout=layout, bags=mcap)
         add_failure_section(report, results)
         write_json(out / "results.json", {
             "command": "evaluate",

@@ -75,6 +75,7 @@ from tqdm import tqdm
 
 from eval.execution import SimSource, executor, load_drive, provenance
 from eval.report import Report, fmt, write_json
+from graphpos.colors import color_of
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError, GraphposError, MissingChannelError
 from graphpos.io.outputs import atomic_output, output_folder
@@ -360,17 +361,16 @@ def _figure(study: FaultStudy, folder: Path) -> Path | None:
     cols = 2
     rows = math.ceil(len(episodic) / cols)
     fig, axes = plt.subplots(rows, cols, figsize=(12, 3.2 * rows), squeeze=False)
-    cmap = plt.get_cmap("tab10")
     for ax, fault in zip(axes.flat, episodic):
         span = None
-        for i, est in enumerate(shown):
+        for est in shown:
             c = study.cells.get((fault, est), [{}])[0]
             s = c.get("series")
             if not s:
                 continue
             span = s["span"]
-            ax.plot(s["t_s"], s["error_m"], color=cmap(i), lw=1.0, label=est)
-            ax.plot(s["fault_free_t_s"], s["fault_free_error_m"], color=cmap(i), lw=0.7, ls=":")
+            ax.plot(s["t_s"], s["error_m"], color=color_of(est), lw=1.0, label=est)
+            ax.plot(s["fault_free_t_s"], s["fault_free_error_m"], color=color_of(est), lw=0.7, ls=":")
         if span:
             ax.axvspan(*span, color="0.85", lw=0, label="fault")
             width = span[1] - span[0]

@@ -1,4 +1,9 @@
-"""PNG figures of the reports (matplotlib, Agg back-end: no display needed)."""
+"""PNG figures of the reports (matplotlib, Agg back-end: no display needed).
+
+Each estimator is drawn in its colour of :func:`graphpos.colors.color_of`,
+the same in every figure, KML export and Foxglove map, whichever estimators
+a figure shows.
+"""
 
 from __future__ import annotations
 
@@ -11,6 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from eval.metrics import error_series, wheel_speed_error  # noqa: E402
+from graphpos.colors import TRUTH_COLOR, color_of  # noqa: E402
 from graphpos.drive import Drive  # noqa: E402
 from graphpos.estimate import Estimate  # noqa: E402
 from graphpos.io.outputs import atomic_output  # noqa: E402
@@ -33,11 +39,6 @@ def _label_axes(ax, xlabel: str, ylabel: str, title: str, ncol: int = 1) -> None
     ax.legend(fontsize=8, ncol=ncol)
     ax.set_title(title)
     ax.grid(alpha=0.3)
-
-
-def _colors(names: list[str]) -> dict[str, tuple]:
-    cmap = plt.get_cmap("tab10")
-    return {n: cmap(i % 10) for i, n in enumerate(names)}
 
 
 def _walls(drive: Drive) -> list[np.ndarray]:
@@ -86,10 +87,9 @@ def trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: st
     if len(drive.rsus):
         ax.scatter(drive.rsus.east_m, drive.rsus.north_m, marker="^", s=40, color="tab:purple", label="RSUs", zorder=3)
     if drive.has("truth"):
-        ax.plot(drive.truth.east_m, drive.truth.north_m, color="k", lw=1.2, ls="--", label="truth")
-    colors = _colors([e.name for e in estimates])
+        ax.plot(drive.truth.east_m, drive.truth.north_m, color=TRUTH_COLOR, lw=1.2, ls="--", label="truth")
     for est in estimates:
-        ax.plot(est.east_m, est.north_m, lw=1.0, color=colors[est.name], label=est.name)
+        ax.plot(est.east_m, est.north_m, lw=1.0, color=color_of(est.name), label=est.name)
     _frame_on_truth(ax, drive)
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
@@ -123,10 +123,9 @@ def error_vs_time(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
     """Euclidean position error against time, labelled windows shaded."""
     fig, ax = plt.subplots(figsize=(10, 4))
     _shade_windows(ax, drive)
-    colors = _colors([e.name for e in estimates])
     for est in estimates:
         s = error_series(drive, est)
-        ax.plot(s["t_s"], s["error_m"], lw=1.0, color=colors[est.name], label=est.name)
+        ax.plot(s["t_s"], s["error_m"], lw=1.0, color=color_of(est.name), label=est.name)
     ax.set_ylim(bottom=0)
     _label_axes(ax, "time [s]", "position error [m]", f"{drive.name}: position error", ncol=2)
     return _save(fig, path)
@@ -135,12 +134,11 @@ def error_vs_time(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
 def error_cdf(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
     """Empirical CDF of the Euclidean position error."""
     fig, ax = plt.subplots(figsize=(6, 4))
-    colors = _colors([e.name for e in estimates])
     for est in estimates:
         err = np.sort(error_series(drive, est)["error_m"])
         err = err[np.isfinite(err)]
         if err.size:
-            ax.step(err, np.arange(1, err.size + 1) / err.size, where="post", color=colors[est.name], label=est.name)
+            ax.step(err, np.arange(1, err.size + 1) / err.size, where="post", color=color_of(est.name), label=est.name)
     ax.set_ylim(0, 1)
     _label_axes(ax, "position error [m]", "fraction of epochs", f"{drive.name}: error CDF")
     return _save(fig, path)
@@ -155,10 +153,9 @@ def speed_error(drive: Drive, estimates: list[Estimate], path: Path) -> Path | N
     fig, ax = plt.subplots(figsize=(10, 4))
     if wheel_err.size:
         ax.plot(wheel_t, wheel_err, color="0.6", lw=0.6, label="raw wheel speed")
-    colors = _colors([e.name for e in estimates])
     for est in with_velocity:
         s = error_series(drive, est)
-        ax.plot(s["t_s"], s["speed_error_mps"], lw=1.0, color=colors[est.name], label=est.name)
+        ax.plot(s["t_s"], s["speed_error_mps"], lw=1.0, color=color_of(est.name), label=est.name)
     _label_axes(ax, "time [s]", "speed error [m/s]", f"{drive.name}: speed error against truth", ncol=2)
     return _save(fig, path)
 
@@ -173,13 +170,12 @@ def cost_accuracy(points: dict[str, list[tuple[float, float, float]]], path: Pat
     fig, ax = plt.subplots(figsize=(7, 4.5))
     if baseline_m is not None:
         ax.axhline(baseline_m, color="0.4", ls=":", label="no tags (dead reckoning)")
-    colors = _colors(list(points))
     for name, pts in points.items():
         pts = sorted(p for p in pts if np.isfinite(p[1]))
         if not pts:
             continue
         n, m, s = (np.array(v) for v in zip(*pts))
-        ax.errorbar(n, m, yerr=s, marker="o", capsize=3, color=colors[name], label=name)
+        ax.errorbar(n, m, yerr=s, marker="o", capsize=3, color=color_of(name), label=name)
     ax.set_ylim(bottom=0)
     _label_axes(ax, "number of tags", "RMS position error in tunnel [m]", title)
     return _save(fig, path)

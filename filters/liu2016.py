@@ -166,7 +166,11 @@ class FederatedKf(FilterEstimator):
 
     name = "fkf"
     summary = "liu2016 federated KF: RSU + GNSS linear KFs, DR EKF, information sharing, fault isolation (10 Hz)"
-    optional_channels = ("imu", "wheel", "rsu", "gnss")
+    #: The DR subsystem's channels (checked while "dr" is among the configured subsystems, as by default)
+    #: and one kind of position fix (graphpos estimators: "needs imu, wheel, and rsu or gnss").
+    required_channels = ("imu", "wheel")
+    required_any = (("rsu", "gnss"),)
+    optional_channels = ("rsu", "gnss")
     config: Liu2016Config
 
     @classmethod

@@ -75,6 +75,9 @@ class Estimator(ABC):
     summary: ClassVar[str] = ""
     #: Channels without which the estimator refuses a drive.
     required_channels: ClassVar[tuple[str, ...]] = ()
+    #: Groups of channels of which the estimator needs at least one each: ``(("rsu", "gnss"),)``
+    #: refuses a drive with neither an ``rsu`` nor a ``gnss`` channel (and uses whichever it has).
+    required_any: ClassVar[tuple[tuple[str, ...], ...]] = ()
     #: Channels used when present (with documented fallbacks when absent).
     optional_channels: ClassVar[tuple[str, ...]] = ()
     #: Order ``run`` feeds measurements in (:meth:`Drive.measurements`):
@@ -100,13 +103,25 @@ class Estimator(ABC):
         """The papers' defaults."""
 
     # -- checks ---------------------------------------------------------------
+    @classmethod
+    def needs(cls) -> str:
+        """What the estimator needs, as ``graphpos estimators`` lists it: ``imu, wheel, and rsu or gnss``
+        (:attr:`required_channels`, then each group of :attr:`required_any`); ``-`` for nothing."""
+        parts = [*cls.required_channels, *(" or ".join(group) for group in cls.required_any)]
+        if cls.required_any and len(parts) > 1:
+            return ", ".join(parts[:-1]) + (", and " if len(parts) > 2 else " and ") + parts[-1]
+        return ", ".join(parts) or "-"
+
     def check(self, drive: Drive) -> None:
-        """Raise :class:`MissingChannelError` if the drive lacks a needed channel."""
+        """Raise :class:`MissingChannelError` if the drive lacks a needed channel (:meth:`needs`)."""
         missing = [c for c in self.required_channels if not drive.has(c)]
         if missing:
             raise MissingChannelError(
                 f"{self.name} needs channel(s) {', '.join(missing)}, which drive '{drive.name}' does not have"
             )
+        for group in self.required_any:
+            if not any(drive.has(c) for c in group):
+                raise MissingChannelError(f"{self.name} needs a channel of {' or '.join(group)}; drive '{drive.name}' has none")
 
     def prepare(self, drive: Drive) -> Drive:
         """Validate the drive, apply the layout restriction and the sensor profile's corrections and noise levels."""
@@ -128,7 +143,8 @@ class Estimator(ABC):
 
     def channels_used(self, drive: Drive) -> tuple[str, ...]:
         """Channels fed to ``process``, in tie-break order."""
-        return tuple(c for c in (*self.required_channels, *self.optional_channels) if drive.has(c))
+        named = (*self.required_channels, *(c for group in self.required_any for c in group), *self.optional_channels)
+        return tuple(c for c in dict.fromkeys(named) if drive.has(c))
 
     # -- online -------------------------------------------------------------
     @abstractmethod

@@ -15,7 +15,7 @@ import argparse
 import math
 from pathlib import Path
 
-from graphpos.cli import one_line
+from graphpos.cli import add_output_option, one_line
 
 
 def register(sub) -> None:
@@ -23,7 +23,7 @@ def register(sub) -> None:
                        description="Self-calibrate the drive's sensors with graph-batch (truth hidden) and save the "
                                    "sensor profile as JSON, for --profile on run and evaluate.")
     p.add_argument("drive", type=Path, metavar="DRIVE.mcap", help="drive file")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="PROFILE.json", help="profile file to write")
+    add_output_option(p, "PROFILE.json", "profile file to write", "--output")
     p.add_argument("--layout", metavar="L", help="use only the tags of this named layout")
     from graphpos.cli.estimators import add_initial_pose_option
 

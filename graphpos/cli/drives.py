@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from graphpos.cli import one_line, warning_line
+from graphpos.cli import add_output_option, one_line, warning_line
 
 
 def register(sub) -> None:
@@ -37,7 +37,7 @@ def register(sub) -> None:
                                        "increments -> wheel speed and yaw rate, GT -> truth. Conventions: "
                                        "graphpos/io/plaza.py.")
     p.add_argument("file", type=Path, metavar="FILE.mat", help="the Plaza .mat file")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    add_output_option(p, "FILE.mcap", "output drive file", "--output")
     p.add_argument("--origin", type=_origin, default=None, metavar="LAT,LON[,ALT]",
                    help="geodetic origin of the dataset's x/y frame in degrees (and metres), for map views "
                         "(default: the CMU campus, approximately)")
@@ -49,7 +49,7 @@ def register(sub) -> None:
                                        "graphpos/io/mrclam.py.")
     p.add_argument("directory", type=Path, metavar="DIR", help="the dataset folder (e.g. MRCLAM_Dataset6)")
     p.add_argument("--robot", type=int, required=True, metavar="N", help="robot number, 1-5")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    add_output_option(p, "FILE.mcap", "output drive file", "--output")
     p.add_argument("--origin", type=_origin, default=None, metavar="LAT,LON[,ALT]",
                    help="geodetic origin of the dataset's x/y frame in degrees (and metres), for map views "
                         "(default: UTIAS, Toronto, approximately)")
@@ -61,14 +61,14 @@ def register(sub) -> None:
     p.add_argument("source", type=Path, metavar="BAG",
                    help="a ROS 1 .bag file, or a ROS 2 bag folder (or the .db3/.mcap file in it)")
     p.add_argument("--mapping", type=Path, required=True, metavar="MAPPING.toml", help="the mapping file")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    add_output_option(p, "FILE.mcap", "output drive file", "--output")
     p.set_defaults(func=_import_mapped)
     p = formats.add_parser("csv", help="CSV logs, read through a mapping file",
                            description="Columns -> channels as the mapping file says (a TOML file; example: "
                                        "examples/mapping_csv.toml; format: graphpos/io/mapping.py).")
     p.add_argument("source", type=Path, metavar="DIR", help="the folder holding the CSV files the mapping names")
     p.add_argument("--mapping", type=Path, required=True, metavar="MAPPING.toml", help="the mapping file")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    add_output_option(p, "FILE.mcap", "output drive file", "--output")
     p.set_defaults(func=_import_mapped)
 
 
@@ -194,7 +194,7 @@ def _import_plaza(args: argparse.Namespace) -> int:
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
     print(f"wrote {one_line(str(args.output))}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} beacons ({counts})")
     for note in drive.params.get("import_notes", []):
-        print(f"graphpos import: warning: {note}", file=sys.stderr)
+        print(warning_line(args.command, note), file=sys.stderr)
     return 0
 
 
@@ -234,5 +234,5 @@ def _import_mapped(args: argparse.Namespace) -> int:
     print(f"wrote {one_line(str(args.output))}: {drive.name}, {drive.duration_s:.1f} s, {len(drive.tags)} tags, "
           f"{len(drive.rsus)} RSUs ({counts})")
     for note in drive.params.get("import_notes", []):
-        print(warning_line("import", note), file=sys.stderr)
+        print(warning_line(args.command, note), file=sys.stderr)
     return 0

@@ -1,20 +1,26 @@
 """Commands ``estimators`` (list them) and ``run`` (estimators over one drive).
 
-``graphpos run DRIVE.mcap -e NAME [-e NAME ...] [--layout L] [--range-model F] [--initial-pose E,N,YAW_DEG] --out-dir DIR``
-writes into DIR:
+``graphpos run DRIVE.mcap -e NAME [-e NAME ...] [--layout L] [--range-model F] [--initial-pose E,N,YAW_DEG] -o DIR``
+(``--out-dir`` is the old spelling of ``-o``) writes into DIR, for any drive,
+with truth or without, the exports of :func:`graphpos.io.exports.write_exports`
+(the same as ``evaluate`` writes for each drive):
 
 - ``NAME.csv`` per estimator that finished (:data:`graphpos.estimate.CSV_COLUMNS`,
   empty cells where the estimator does not estimate a quantity; only the
   header when it never started: no start pose given and none found in the
-  drive);
-- ``truth.csv``: the drive's truth at its own rate, same columns (when the
-  drive has truth);
+  drive), and ``NAME.tum`` (evo), ``NAME.kml`` (Google Earth),
+  ``NAME.geojson`` when it gave an output;
+- ``truth.csv``, ``.tum``, ``.kml``, ``.geojson``: the drive's truth at its
+  own rate (when the drive has truth: ``evo_ape tum truth.tum NAME.tum``);
+- ``all_estimates.kml``: every track in one Google Earth file;
+- ``estimates.mcap``: the drive with every estimate, for Foxglove;
+- ``estimates_ros2/``: a ROS 2 bag, each estimate (and the truth) as
+  ``nav_msgs/Odometry`` on ``/graphpos/NAME/odometry`` (:mod:`graphpos.io.ros2_bag`);
 - ``run.json``: the start pose given, ``failed`` (the estimators that
   raised) and per estimator its ``status`` (``ok`` or ``failed``), settings
   and config, and when it finished its wall time, output rate, where it
   started (``start``, or ``not_started``) and diagnostics, when it failed
-  its ``error`` (and the ``traceback`` of an internal error);
-- ``estimates.mcap``: the drive with every estimate, for Foxglove.
+  its ``error`` (and the ``traceback`` of an internal error).
 
 The estimators see the drive without its truth (truth is for scoring only,
 issue 13: :meth:`graphpos.drive.Drive.without_truth`). An estimator
@@ -40,7 +46,7 @@ import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from graphpos.cli import error_line, one_line, warning_line
+from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option, error_line, one_line, warning_line
 from graphpos.errors import ConfigError, GraphposError, naming_file
 from graphpos.estimate import Estimate
 
@@ -51,23 +57,25 @@ if TYPE_CHECKING:
 def register(sub) -> None:
     p = sub.add_parser("estimators", help="list the estimators",
                        description="Every estimator `graphpos run` knows: name, what it is, the channels it "
-                                   "needs and the ones it uses when present.")
+                                   "needs (`rsu or gnss`: one of them) and, in brackets, the others it uses when "
+                                   "present.")
     p.add_argument("--json", action="store_true",
-                   help="print a JSON list of {name, summary, required_channels, optional_channels, config}")
+                   help="print a JSON list of {name, summary, needs, required_channels, required_any (groups of "
+                        "which one channel is needed), optional_channels, config}")
     p.set_defaults(func=_estimators)
 
     p = sub.add_parser("run", help="run estimators over a drive",
-                       description="Run one or more estimators over a drive and write their estimates "
-                                   "(NAME.csv), the truth (truth.csv), run.json and estimates.mcap into a folder.")
+                       description="Run one or more estimators over a drive and write into a folder their estimates "
+                                   "(NAME.csv, .tum, .kml, .geojson), the truth's (truth.*, when the drive has it), "
+                                   "all_estimates.kml, estimates.mcap (Foxglove), estimates_ros2/ (a ROS 2 bag of "
+                                   "nav_msgs/Odometry) and run.json.")
     p.add_argument("drive", type=Path, metavar="DRIVE.mcap", help="drive file (see `graphpos simulate`)")
     p.add_argument("-e", "--estimator", dest="estimators", action="append", required=True, metavar="NAME",
                    help="estimator name (repeat for several; see `graphpos estimators`)")
     p.add_argument("--layout", metavar="L", help="use only the tags of this named layout (e.g. optimized)")
     p.add_argument("--range-model", type=Path, metavar="F",
                    help="range model JSON (from `graphpos ranging fit`); default: the drive's default model")
-    p.add_argument("--out-dir", type=Path, required=True, metavar="DIR",
-                   help="output folder (created if absent; an earlier output of graphpos there is replaced, a folder "
-                        "holding other files refused)")
+    add_output_option(p, "DIR", OUTPUT_FOLDER_HELP, "--out-dir")
     add_settings_options(p)
     add_initial_pose_option(p)
     from graphpos.cli.calibrate import add_profile_option
@@ -132,28 +140,24 @@ def _estimators(args: argparse.Namespace) -> int:
     rows = []
     for name, cls in estimator_classes().items():
         cfg = cls.default_config()
+        named = {*cls.required_channels, *(c for group in cls.required_any for c in group)}
         rows.append({
             "name": name,
             "summary": cls.summary,
+            "needs": cls.needs(),
             "required_channels": list(cls.required_channels),
-            "optional_channels": list(cls.optional_channels),
+            "required_any": [list(group) for group in cls.required_any],
+            "optional_channels": [c for c in cls.optional_channels if c not in named],
             "config": config_dict(cfg) if dataclasses.is_dataclass(cfg) else {},
         })
     if args.json:
         print(json.dumps(rows, indent=1))
         return 0
     for r in rows:
-        needs = ", ".join(r["required_channels"]) or "-"
         opt = f" (+ {', '.join(r['optional_channels'])})" if r["optional_channels"] else ""
-        print(f"{r['name']:<18} needs {needs}{opt}")
+        print(f"{r['name']:<18} needs {r['needs']}{opt}")
         print(f"{'':<18} {r['summary']}")
     return 0
-
-
-def truth_estimate(drive) -> Estimate:
-    """The drive's truth as an :class:`Estimate` named ``truth`` (for CSV/MCAP output)."""
-    tr = drive.truth
-    return Estimate("truth", tr.t_s, tr.east_m, tr.north_m, tr.v_east_mps, tr.v_north_mps, tr.yaw_rad)
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -165,8 +169,8 @@ def _run(args: argparse.Namespace) -> int:
 
     names = list(dict.fromkeys(args.estimators))
     if "truth" in names:
-        raise ConfigError("'truth' is not an estimator name (truth.csv is always written)")
-    check_output_folder(args.out_dir)  # before reading a long drive
+        raise ConfigError("'truth' is not an estimator name (the truth's exports are truth.*)")
+    check_output_folder(args.output)  # before reading a long drive
     settings = estimator_settings(args, names)
     pose = initial_pose(args)
     drive = read_drive(args.drive)
@@ -189,12 +193,12 @@ def _run(args: argparse.Namespace) -> int:
         print(error_line("run", f"{name} failed: {failure.error}"), file=sys.stderr)
     if len(failed) == len(outcomes):  # nothing to write
         return 2 if all(f.traceback is None for f in failed.values()) else 1
-    with output_folder(args.out_dir, "run.json") as folder:
+    with output_folder(args.output, "run.json") as folder:
         _write_run(folder, args, drive, estimators, outcomes, settings, pose, sensor_profile, drive_warnings)
     for e in outcomes.values():
         if isinstance(e, Estimate):
             note = "  (not started: no start pose)" if e.diagnostics.get("not_started") else ""
-            csv = one_line(str(args.out_dir / f"{safe_name(e.name)}.csv"))
+            csv = one_line(str(args.output / f"{safe_name(e.name)}.csv"))
             print(f"{e.name:<18} {len(e):6d} outputs  {e.wall_time_s:7.3f} s  -> {csv}{note}")
     for line in drive_warnings:  # last, so that a refusal stays one line
         print(warning_line("run", line), file=sys.stderr)
@@ -226,18 +230,11 @@ def _write_run(folder: Path, args: argparse.Namespace, drive, estimators, outcom
                drive_warnings: list[str]) -> None:
     """The files of ``run`` (module docstring) into ``folder``; ``drive_warnings``: the drive's broken
     warning rules (:func:`graphpos.io.checks.require_usable`)."""
-    from graphpos.io import write_drive
-    from graphpos.io.exports import csv_text, write_atomically
-    from graphpos.io.outputs import safe_name
+    from graphpos.io.exports import write_atomically, write_exports
     from graphpos.registry import start_pose_record
     from graphpos.settings import config_dict
 
-    estimates = [e for e in outcomes.values() if isinstance(e, Estimate)]
-    write_drive(folder / "estimates.mcap", drive, estimates=estimates)
-    for e in estimates:
-        write_atomically(folder / f"{safe_name(e.name)}.csv", csv_text(e))
-    if drive.has("truth"):
-        write_atomically(folder / "truth.csv", csv_text(truth_estimate(drive)))
+    write_exports(folder, drive, [e for e in outcomes.values() if isinstance(e, Estimate)])
     records = {}
     for est in estimators:
         e = outcomes[est.name]

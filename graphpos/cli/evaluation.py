@@ -20,14 +20,12 @@ import sys
 import time
 from pathlib import Path
 
-from graphpos.cli import one_line, warning_line
+from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option, one_line, warning_line
 from graphpos.cli.estimators import add_initial_pose_option, add_settings_options, estimator_settings, initial_pose
 
 
 def _add_execution_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("-o", "--output", required=True, type=Path,
-                   help="output folder (created; an earlier output of graphpos there is replaced, a folder "
-                        "holding other files refused)")
+    add_output_option(p, "DIR", OUTPUT_FOLDER_HELP, "--output")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
     p.add_argument("--scheduler", default=None, metavar="ADDRESS",
                    help="run on a Dask cluster, e.g. tcp://host:8786, instead of the local pool")
@@ -37,7 +35,9 @@ def _add_execution_options(p: argparse.ArgumentParser) -> None:
 def register(sub) -> None:
     p = sub.add_parser("evaluate", help="run estimators over drives and write a comparison report",
                        description="Run estimators over drives with truth; write results.json, report.md/html, "
-                                   "plots, TUM/KML/GeoJSON/CSV exports and one MCAP per drive.")
+                                   "plots and, per drive, the exports `graphpos run` writes: TUM/KML/GeoJSON/CSV of "
+                                   "each estimate and of the truth, estimates.mcap (Foxglove) and estimates_ros2/ "
+                                   "(a ROS 2 bag of nav_msgs/Odometry).")
     p.add_argument("drives", nargs="+", help="drive MCAP files (with a truth channel)")
     p.add_argument("-e", "--estimator", dest="estimators", action="append", required=True, metavar="NAME",
                    help="estimator name (repeat, or comma-separate); see `graphpos estimators`")

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import sys
 import time
-from pathlib import Path
+
+from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option
 
 
 def register(sub) -> None:
@@ -19,9 +20,7 @@ def register(sub) -> None:
     p.add_argument("--seeds", type=int, default=None, help="seeded drives (default 3, quick 1)")
     p.add_argument("--quick", action="store_true", help="one seed")
     p.add_argument("--duration", type=float, default=None, metavar="S", help="drive length (default: one pass)")
-    p.add_argument("-o", "--output", required=True, type=Path,
-                   help="output folder (created; an earlier output of graphpos there is replaced, a folder "
-                        "holding other files refused)")
+    add_output_option(p, "DIR", OUTPUT_FOLDER_HELP, "--output")
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: all cores)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=_fault_study)

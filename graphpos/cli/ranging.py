@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from graphpos.cli import one_line
+from graphpos.cli import add_output_option, one_line
 from graphpos.errors import ConfigError, naming_file
 from graphpos.io.outputs import check_output_file
 
@@ -38,7 +38,7 @@ def register(sub) -> None:
     p.add_argument("drive", type=Path, help="drive MCAP file with truth")
     p.add_argument("--truth", action="store_true",
                    help="fit against the drive's truth (required: a range model is fitted to true distances)")
-    p.add_argument("-o", "--output", type=Path, required=True, help="model file to write (JSON)")
+    add_output_option(p, "MODEL.json", "model file to write (JSON)", "--output")
     p.add_argument("--kind", default="auto", choices=("auto", "lssvm", "propagation", "linear"),
                    help="auto: linear for radios reporting ranges, lssvm for RSS (default)")
     p.set_defaults(func=_fit)

@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from graphpos.cli import one_line
+from graphpos.cli import add_output_option, one_line
 from graphpos.errors import ConfigError, naming_file
 from graphpos.sim.faults import FAULTS
 from graphpos.sim.params import PROFILES
@@ -44,7 +44,7 @@ def register(sub) -> None:
                         "rfid_blackout:start_s=20:duration_s=30, dead_tags:fraction=0.1, "
                         "dropped_samples:channels=imu+wheel:fraction=0.05. Kinds: " + ", ".join(FAULTS)
                         + ". A [faults.KIND] table in --config does the same.")
-    p.add_argument("-o", "--output", type=Path, required=True, metavar="FILE.mcap", help="output drive file")
+    add_output_option(p, "FILE.mcap", "output drive file", "--output")
     p.set_defaults(func=_simulate)
 
 

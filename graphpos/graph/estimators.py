@@ -45,6 +45,8 @@ _CHANNELS = ("imu", "wheel", "compass", "rfid", "rsu", "gnss")
 class _GraphEstimator(Estimator):
     """Shared online machinery: builder + incremental smoother + output rows."""
 
+    #: Odometry between fixes: an IMU or wheel speed.
+    required_any = (("imu", "wheel"),)
     optional_channels = _CHANNELS
 
     @classmethod
@@ -55,11 +57,6 @@ class _GraphEstimator(Estimator):
         super().__init__(config, layout, range_model, initial_pose, profile)
         if not isinstance(self.config, GraphConfig):
             raise ConfigError(f"{self.name} takes a GraphConfig, got {type(self.config).__name__}")
-
-    def check(self, drive: Drive) -> None:
-        super().check(drive)
-        if not (drive.has("wheel") or drive.has("imu")):
-            raise MissingChannelError(f"{self.name} needs wheel speed or an IMU between fixes; drive '{drive.name}' has neither")
 
     # -- hooks ------------------------------------------------------------------
     def _make_smoother(self, model_name: str):

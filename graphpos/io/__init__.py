@@ -8,6 +8,9 @@
 - :func:`graphpos.io.rosbag.import_rosbag`, :func:`graphpos.io.csvlog.import_csv`:
   ROS bags and CSV logs through a mapping file (:mod:`graphpos.io.mapping`).
 - :func:`graphpos.io.geo.enu_to_geodetic` / ``geodetic_to_enu``: local east/north <-> lat/lon (WGS84, pymap3d).
+- :func:`graphpos.io.exports.write_exports`: the exports of ``run`` and
+  ``evaluate`` (TUM, KML, GeoJSON, CSV, the MCAP file, and the ROS 2 bag of
+  :mod:`graphpos.io.ros2_bag`).
 """
 
 from graphpos.io.mcap_drive import read_drive, read_estimates, read_mcap, write_drive

@@ -38,7 +38,9 @@ back):
   ``foxglove.LocationFix`` (latitude/longitude from east/north by
   :func:`graphpos.io.geo.enu_to_geodetic` about the drive's origin, so the
   Map panel draws the track; GNSS and RSU fixes carry their sigma as a
-  diagonal covariance);
+  diagonal covariance; the fixes of the truth and of each estimate carry
+  their colour, :func:`graphpos.colors.color_of`, the one of the report
+  plots, so that the Map panel tells the tracks apart);
 - ``/truth/pose``, ``/estimates/<name>/pose``: ``foxglove.PoseInFrame`` in
   frame ``enu`` (x east, y north, yaw about z);
 - ``/map``: one ``foxglove.GeoJSON`` message with the tags and RSUs as points.
@@ -76,6 +78,7 @@ import numpy as np
 from mcap.records import Channel as McapChannel
 
 from graphpos import __version__
+from graphpos.colors import rgb_of
 from graphpos.drive import CHANNEL_SPECS, Channel, Drive, GeoOrigin, RsuMap, TagMap, Window
 from graphpos.errors import ConfigError, DriveError, FileFormatError
 from graphpos.estimate import Estimate
@@ -170,6 +173,12 @@ _LOCATION_FIX_SCHEMA = {
         "altitude": {"type": "number"},
         "position_covariance": {"type": "array", "items": {"type": "number"}, "minItems": 9, "maxItems": 9},
         "position_covariance_type": {"type": "integer", "minimum": 0, "maximum": 3},
+        "color": {
+            "title": "foxglove.Color",
+            "type": "object",
+            "properties": {k: {"type": "number", "minimum": 0, "maximum": 1} for k in "rgba"},
+            "required": list("rgba"),
+        },
     },
 }
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
@@ -239,8 +248,10 @@ def _thin(t_s: np.ndarray, rate_hz: float) -> np.ndarray:
     return np.flatnonzero(np.r_[True, bins[1:] != bins[:-1]])
 
 
-def _location_fixes(t_ns: np.ndarray, east_m, north_m, var_m2: tuple[np.ndarray, np.ndarray] | None, origin: GeoOrigin) -> list[bytes]:
-    """LocationFix messages; ``var_m2`` = (east, north) variances where known."""
+def _location_fixes(t_ns: np.ndarray, east_m, north_m, var_m2: tuple[np.ndarray, np.ndarray] | None, origin: GeoOrigin,
+                    colored_as: str | None = None) -> list[bytes]:
+    """LocationFix messages; ``var_m2`` = (east, north) variances where known; ``colored_as``: the estimator
+    (or ``truth``) whose colour (:func:`graphpos.colors.rgb_of`) the fixes carry, None for none."""
     lat, lon = enu_to_geodetic(east_m, north_m, origin)
     sec, nsec = _stamps(t_ns)
     n = t_ns.size
@@ -250,12 +261,14 @@ def _location_fixes(t_ns: np.ndarray, east_m, north_m, var_m2: tuple[np.ndarray,
     else:
         cov = [f"[{e},0,0,0,{nn},0,0,0,0]" for e, nn in zip(_float_texts(var_m2[0]), _float_texts(var_m2[1]))]
         cov_type = ["2"] * n
-    names = ("timestamp", "frame_id", "latitude", "longitude", "altitude", "position_covariance", "position_covariance_type")
+    names = ["timestamp", "frame_id", "latitude", "longitude", "altitude", "position_covariance", "position_covariance_type"]
     stamp = [f'{{"sec":{s},"nsec":{ns}}}' for s, ns in zip(sec, nsec)]
-    return _encode_rows(
-        names,
-        [stamp, [f'"{POSE_FRAME}"'] * n, _float_texts(lat), _float_texts(lon), [repr(float(origin.alt_m))] * n, cov, cov_type],
-    )
+    texts = [stamp, [f'"{POSE_FRAME}"'] * n, _float_texts(lat), _float_texts(lon), [repr(float(origin.alt_m))] * n, cov, cov_type]
+    if colored_as is not None:
+        r, g, b = rgb_of(colored_as)
+        names.append("color")
+        texts.append([json.dumps({"r": r, "g": g, "b": b, "a": 1.0})] * n)
+    return _encode_rows(names, texts)
 
 
 def _poses(t_ns: np.ndarray, east_m, north_m, yaw_rad) -> list[bytes]:
@@ -358,7 +371,7 @@ def _drive_topics(drive: Drive, origin: GeoOrigin, base_s: float) -> list[Topic]
         keep = _thin(truth.t_s, VIEW_RATE_HZ)
         t_ns = _time_ns(truth.t_s[keep], base_s)
         e, n = truth.east_m[keep], truth.north_m[keep]
-        topics.append(_topic("/truth/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, n, None, origin)))
+        topics.append(_topic("/truth/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, n, None, origin, "truth")))
         topics.append(_topic("/truth/pose", _POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, n, truth.yaw_rad[keep])))
     if drive.has("gnss"):
         g = drive.gnss
@@ -412,7 +425,7 @@ def _estimate_topics(estimates: Sequence[Estimate], origin: GeoOrigin, base_s: f
         e, nn = est.east_m[keep], est.north_m[keep]
         var = (est.cov_en_m2[keep, 0, 0], est.cov_en_m2[keep, 1, 1]) if est.cov_en_m2 is not None else None
         yaw = est.yaw_rad[keep] if est.yaw_rad is not None else None
-        topics.append(_topic(f"{topic}/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, nn, var, origin)))
+        topics.append(_topic(f"{topic}/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, nn, var, origin, est.name)))
         topics.append(_topic(f"{topic}/pose", _POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, nn, yaw)))
     return topics
 

@@ -84,6 +84,9 @@ from graphpos.io.files import read_input
 
 #: Approximate geodetic position of the MRCLAM room (UTIAS, Toronto).
 MRCLAM_ORIGIN = GeoOrigin(lat_deg=43.7823, lon_deg=-79.4660)
+#: Where the data comes from, said when the folder is missing.
+MRCLAM_SOURCE = ("the UTIAS MRCLAM datasets are published at asrl.utias.utoronto.ca/datasets/mrclam "
+                 "(Leung et al., IJRR 2011): unpack one, e.g. MRCLAM_Dataset6, and give its folder")
 
 #: Subject numbers of the robots; every other subject is a landmark.
 ROBOTS = (1, 2, 3, 4, 5)
@@ -182,7 +185,7 @@ def _read_table(path: Path, columns: tuple[str, ...], min_rows: int) -> _Table:
 
 def _files(directory: Path, robot: int) -> dict[str, Path]:
     if not directory.exists():
-        raise FileFormatError(f"{directory}: no such folder")
+        raise FileFormatError(f"{directory}: no such folder ({MRCLAM_SOURCE})")
     if not directory.is_dir():
         raise FileFormatError(f"{directory}: is a file, not an MRCLAM dataset folder")
     if isinstance(robot, bool) or not isinstance(robot, (int, np.integer)) or int(robot) not in ROBOTS:

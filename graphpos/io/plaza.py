@@ -80,6 +80,10 @@ from graphpos.io.files import read_input
 
 #: Approximate geodetic position of the Plaza datasets (CMU campus, Pittsburgh).
 PLAZA_ORIGIN = GeoOrigin(lat_deg=40.4435, lon_deg=-79.9435, alt_m=280.0)
+#: Where the data comes from, said when the file is missing: GTSAM's Plaza1_.mat is, byte for byte, the
+#: Plaza1.mat of ../shared/data/plaza (SHA-256 9ccbfec1...).
+PLAZA_SOURCE = ("the CMU Plaza files ship in the GTSAM repository, github.com/borglab/gtsam: "
+                "examples/Data/Plaza1_.mat and Plaza2_.mat")
 
 #: Arrays read from the file, with their minimum column count and meaning.
 _ARRAYS = {
@@ -91,6 +95,8 @@ _ARRAYS = {
 
 
 def _load(path: Path) -> dict[str, np.ndarray]:
+    if not path.exists() and not path.is_symlink():
+        raise FileFormatError(f"{path}: no such file ({PLAZA_SOURCE})")
     raw = read_input(path)
     try:
         mat = scipy.io.loadmat(io.BytesIO(raw))

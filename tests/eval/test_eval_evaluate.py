@@ -32,7 +32,8 @@ def test_evaluate_writes_every_artefact(tmp_path, drive, test_estimators):
         assert (out / name).stat().st_size > 0
     sub = out / "straight"
     for name in ("trajectories.png", "error_vs_time.png", "error_cdf.png", "speed_error.png",
-                 "noisy-truth.tum", "noisy-truth.kml", "noisy-truth.geojson", "noisy-truth.csv", "all_estimates.kml"):
+                 "noisy-truth.tum", "noisy-truth.kml", "noisy-truth.geojson", "noisy-truth.csv", "all_estimates.kml",
+                 "truth.tum", "truth.csv", "estimates.mcap", "estimates_ros2/metadata.yaml"):
         assert (sub / name).stat().st_size > 0, name
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") == 4
@@ -48,9 +49,9 @@ def test_evaluate_writes_every_artefact(tmp_path, drive, test_estimators):
     tum = np.loadtxt(sub / "noisy-truth.tum")
     assert tum.shape == (len(drive.truth), 8)
     # the MCAP holds the drive and the estimate
-    back = read_estimates(sub / "straight.mcap")
+    back = read_estimates(sub / "estimates.mcap")
     assert [e.name for e in back] == ["noisy-truth"]
-    assert read_drive(sub / "straight.mcap").truth == drive.truth
+    assert read_drive(sub / "estimates.mcap").truth == drive.truth
 
 
 def test_failures_are_reported_not_raised(tmp_path, drive, test_estimators):

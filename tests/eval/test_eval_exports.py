@@ -61,7 +61,7 @@ def test_cli_evaluate_writes_the_folder(tmp_path, drive, test_estimators, capsys
                  "--workers", "1", "--no-progress"])
     assert code == 0
     assert (tmp_path / "out" / "results.json").exists()
-    assert (tmp_path / "out" / "straight" / "straight.mcap").exists()
+    assert (tmp_path / "out" / "straight" / "estimates.mcap").exists()
 
 
 def test_cli_evaluate_without_truth_exits_2(tmp_path, drive, test_estimators, capsys):

@@ -32,7 +32,9 @@ def test_estimators_lists_song2016(capsys):
 def test_run_writes_every_output(drive_file, tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["run", str(drive_file), "-e", "fusion-ekf", "-e", "rfid-ekf", "--layout", "optimized", "--out-dir", str(out)]) == 0
-    assert {p.name for p in out.iterdir()} == {"fusion-ekf.csv", "rfid-ekf.csv", "truth.csv", "run.json", "estimates.mcap"}
+    assert {p.name for p in out.iterdir()} == {"run.json", "all_estimates.kml", "estimates.mcap", "estimates_ros2",
+                                               *(f"{n}.{ext}" for n in ("fusion-ekf", "rfid-ekf", "truth")
+                                                 for ext in ("csv", "tum", "kml", "geojson"))}
     for name in ("fusion-ekf", "rfid-ekf", "truth"):
         with open(out / f"{name}.csv") as fh:
             rows = list(csv.reader(fh))

@@ -49,7 +49,7 @@ MAT_COMMANDS = {
 CONFIG_COMMANDS = {"simulate-config": ["simulate", "paper-straight", "--duration", "3", "--config", "{file}",
                                        "-o", "{out}/sim.mcap"]}
 #: The first word of the error line of each command.
-PREFIX = {"ranging-fit": "ranging", "import-plaza": "import", "reproduce-plaza": "reproduce",
+PREFIX = {"ranging-fit": "ranging fit", "import-plaza": "import plaza", "reproduce-plaza": "reproduce",
           "simulate-config": "simulate"}
 
 CHANNELS = ("imu", "wheel", "compass", "rfid", "rsu", "gnss", "truth")

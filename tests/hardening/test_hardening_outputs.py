@@ -34,6 +34,7 @@ from graphpos.io import write_drive
 from graphpos.io.outputs import SAFE_NAME_CHARS, check_output_file, output_folder, safe_name
 from graphpos.errors import FileFormatError
 from graphpos.sim import simulate
+from output_files import export_files  # tests/io, on the import path (conftest.py)
 
 ROOT = os.geteuid() == 0
 DEAD_PID = 99999999  # above any pid_max: no such process
@@ -115,9 +116,9 @@ def test_bad_output_folder_is_refused_before_any_work(capsys, tmp_path, command,
 
 FILE_COMMANDS = {
     "simulate": ["simulate", "paper-straight", "--duration", "3", "-o", "{out}"],
-    "import": ["import", "plaza", "{drive}", "-o", "{out}"],
+    "import plaza": ["import", "plaza", "{drive}", "-o", "{out}"],
     "calibrate": ["calibrate", "{drive}", "-o", "{out}"],
-    "ranging": ["ranging", "fit", "{drive}", "--truth", "-o", "{out}"],
+    "ranging fit": ["ranging", "fit", "{drive}", "--truth", "-o", "{out}"],
 }
 
 
@@ -174,7 +175,7 @@ def test_long_names_stay_apart(name, tail):
 @pytest.mark.parametrize("name", ["x" * 400, "a/b/../../c", "..", ".hidden", "line\nbreak", "tab\there", "/", "",
                                   "\x1b[31mred", "dróga 7", "con:aux?*"])
 def test_drive_names_make_safe_files(capsys, tmp_path, name):
-    """evaluate names a drive's folder and MCAP after the drive: every such file stays inside the output folder."""
+    """evaluate names a drive's folder after the drive: every such file stays inside the output folder."""
     drive = tmp_path / "d.mcap"
     write_drive(drive, simulate("paper-straight", seed=1, duration_s=6.0).replace(name=name))
     out = tmp_path / "eval"
@@ -183,7 +184,7 @@ def test_drive_names_make_safe_files(capsys, tmp_path, name):
     assert {p.name for p in tmp_path.iterdir()} == {"d.mcap", "eval"}
     subs = [p for p in out.iterdir() if p.is_dir()]
     assert len(subs) == 1 and subs[0].name == safe_name(name)
-    assert (subs[0] / f"{safe_name(name)}.mcap").is_file() and (subs[0] / "dr.csv").is_file()
+    assert (subs[0] / "estimates.mcap").is_file() and (subs[0] / "dr.csv").is_file()
     for path in out.rglob("*"):
         assert len(path.name.encode()) <= 255 and "\n" not in path.name
 
@@ -216,9 +217,8 @@ def test_rerun_replaces_our_own_output(capsys, tmp_path, drive_file):
     assert cli(capsys, "run", drive_file, "-e", "dr", "-e", "rfid-ekf", "--out-dir", out)[0] == 0
     assert (out / "rfid-ekf.csv").is_file()
     assert cli(capsys, "run", drive_file, "-e", "dr", "--out-dir", out)[0] == 0
-    assert {p.name for p in out.iterdir()} == {"dr.csv", "truth.csv", "run.json", "estimates.mcap"}
-    listed = json.loads((out / "run.json").read_text())["output_files"]
-    assert sorted(listed) == sorted(p.name for p in out.iterdir())
+    assert {p.name for p in out.iterdir()} == {*export_files(["dr"]), "run.json"}
+    assert _complete(out, "run.json")
     # an evaluate output is ours too, and the other way round
     assert cli(capsys, "evaluate", drive_file, "-e", "dr", "-o", out, "--workers", "1", "--no-progress")[0] == 0
     assert (out / "results.json").is_file() and not (out / "run.json").exists()
@@ -374,7 +374,7 @@ def test_sigkill_during_a_real_run_never_shows_half_an_output(capsys, tmp_path, 
     assert [name.startswith(f".out.{child.pid}-") for name in _leftovers(tmp_path)] == [True]
     assert cli(capsys, "run", drive_file, "-e", "dr", "--out-dir", out)[0] == 0
     assert _leftovers(tmp_path) == [] and _complete(out, "run.json")
-    assert {p.name for p in out.iterdir()} == {"dr.csv", "truth.csv", "run.json", "estimates.mcap"}
+    assert {p.name for p in out.iterdir()} == {*export_files(["dr"]), "run.json"}
 
 
 def test_an_exception_inside_leaves_nothing(tmp_path):

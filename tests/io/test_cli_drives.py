@@ -123,7 +123,7 @@ def test_import_plaza_bad_input(tmp_path, capsys, case):
         expect = "it is a folder"
     before = sorted(p.name for p in tmp_path.iterdir())
     status, out, err = run(capsys, "import", "plaza", mat, "-o", output)
-    assert_one_line_error(status, out, err, "graphpos import: error:", expect)
+    assert_one_line_error(status, out, err, "graphpos import plaza: error:", expect)
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 

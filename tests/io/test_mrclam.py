@@ -294,7 +294,7 @@ def test_import_mrclam_bad_input(tmp_path, capsys, case):
     assert status == 2
     lines = err.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in err, err
-    assert lines[0].startswith("graphpos import: error:") and expect in lines[0], (expect, lines[0])
+    assert lines[0].startswith("graphpos import mrclam: error:") and expect in lines[0], (expect, lines[0])
     assert sorted(p.name for p in tmp_path.iterdir()) == before
 
 

@@ -268,7 +268,7 @@ def test_import_plaza_warns_of_a_corrected_heading(tmp_path, capsys):
     status, out, err = run(capsys, "import", "plaza", turned, "-o", tmp_path / "turned.mcap")
     assert status == 0 and "wrote" in out
     lines = err.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("graphpos import: warning: truth heading (GT column 4) was 180 deg")
+    assert len(lines) == 1 and lines[0].startswith("graphpos import plaza: warning: truth heading (GT column 4) was 180 deg")
     info = json.loads(run(capsys, "info", tmp_path / "turned.mcap", "--json")[1])
-    assert info["params"]["import_notes"] == [lines[0].removeprefix("graphpos import: warning: ")]
+    assert info["params"]["import_notes"] == [lines[0].removeprefix("graphpos import plaza: warning: ")]
     assert info["truth_checks"]["heading"]["verdict"] == "ok"
