@@ -46,7 +46,7 @@ The truth is never read.
 
 Gaps, as in the factor graphs (:mod:`graphpos.graph.builder`): such a
 filter's odometry channels (``imu``, ``wheel``) are held for at most
-:data:`MAX_ODOMETRY_GAP_S`. When one of them has been silent for longer,
+:data:`graphpos.ignition.MAX_ODOMETRY_GAP_S`. When one of them has been silent for longer,
 the filter's track ends (no output is extrapolated into the gap); once
 every one is back, the filter starts again from a fresh ignition, as at
 the drive's start. Each gap and its restart are listed in
@@ -64,7 +64,7 @@ import numpy as np
 from graphpos.drive import Channel, Drive, Measurement
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
-from graphpos.ignition import NOT_STARTED, Ignition, IgnitionConfig, StartState
+from graphpos.ignition import MAX_ODOMETRY_GAP_S, NOT_STARTED, Ignition, IgnitionConfig, StartState
 from graphpos.ranging.drive_models import ranges_by_field, reading_models
 from graphpos.standstill import StandstillGyroBias
 
@@ -91,12 +91,8 @@ _NEEDED_FIELDS = {"imu": ("yaw_rate_radps",), "wheel": ("speed_mps",), "compass"
 _BRIDGED_FIELDS = {"imu": ("accel_x_mps2", "accel_y_mps2")}
 
 #: Odometry channels of a filter that needs a start: one silent for longer
-#: than :data:`MAX_ODOMETRY_GAP_S` ends its track (module docstring).
+#: than :data:`graphpos.ignition.MAX_ODOMETRY_GAP_S` ends its track (module docstring).
 _ODOMETRY_CHANNELS = ("imu", "wheel")
-#: Longest odometry silence held, s: the graphs' default
-#: (:attr:`graphpos.graph.config.GraphConfig.max_odometry_gap_s`; MRCLAM's
-#: odometry pauses for up to 1.03 s).
-MAX_ODOMETRY_GAP_S = 2.0
 
 
 class FilterEstimator(Estimator):
@@ -190,7 +186,7 @@ class FilterEstimator(Estimator):
 
         A track (or the search for its start) is lost at the first
         measurement after a seen odometry channel has been silent for more
-        than :data:`MAX_ODOMETRY_GAP_S` (a scan in progress is applied
+        than :data:`graphpos.ignition.MAX_ODOMETRY_GAP_S` (a scan in progress is applied
         first); the next measurement at which every one is fresh again
         starts a fresh ignition.
         """

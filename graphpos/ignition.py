@@ -188,6 +188,10 @@ class IgnitionConfig:
 
 #: Speed 1-sigma when the drive has no wheel speed, m/s.
 UNKNOWN_SPEED_SIGMA_MPS = 5.0
+#: Longest odometry silence (wheel speed, yaw rate) an estimator holds its last sample over, s; a longer one ends
+#: its track, which starts again from a fresh ignition (filters, and the graphs' default ``max_odometry_gap_s``).
+#: MRCLAM's odometry pauses for up to 1.03 s.
+MAX_ODOMETRY_GAP_S = 2.0
 #: What an estimator's diagnostics say (``not_started``) when it never started.
 NOT_STARTED = "no start state: give --initial-pose, or a drive with fixes or ranges while moving"
 #: Without dead reckoning, readings this close to the latest one are solved together, s.

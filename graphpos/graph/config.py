@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 from graphpos.errors import ConfigError
 from graphpos.estimator import require_positive_numbers
+from graphpos.ignition import MAX_ODOMETRY_GAP_S
 
 PARAMETERISATIONS = ("auto", "planar", "inertial")
 ROBUST_LOSSES = ("huber", "cauchy", "none")
@@ -185,7 +186,7 @@ class GraphConfig:
     heading_drift_sigma_radps: float = math.radians(0.1)
     compass_sigma_rad: float = math.radians(1.5)
     max_delay_s: float = 3.0
-    max_odometry_gap_s: float = 2.0
+    max_odometry_gap_s: float = MAX_ODOMETRY_GAP_S
     fixed_lag_s: float = 10.0
     final: bool = False
     output_covariance: bool = True

@@ -21,15 +21,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from drive_samples import every_channel_drive
 from mcap.reader import make_reader
 from mcap.writer import Writer
 from plaza_samples import synthetic_plaza
 
 from graphpos.cli import main
-from graphpos.io import write_drive
 from graphpos.registry import estimator_classes
-from graphpos.sim import simulate
 
 #: A numpy warning would be a second line on the user's stderr.
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
@@ -115,20 +112,6 @@ def time_backwards(channel: str):
 def _write(path: Path, data: bytes) -> Path:
     path.write_bytes(data)
     return path
-
-
-@pytest.fixture(scope="module")
-def samples(tmp_path_factory):
-    """Good source files: the hand-built every-channel drive, a short simulated drive, a synthetic Plaza .mat."""
-    folder = tmp_path_factory.mktemp("good")
-    every = write_drive(folder / "every.mcap", every_channel_drive()) or folder / "every.mcap"
-    sim = simulate("paper-straight", seed=1, duration_s=12.0)
-    write_drive(folder / "sim.mcap", sim)
-    write_drive(folder / "one-second.mcap", simulate("paper-straight", seed=1, duration_s=1.0))
-    write_drive(folder / "no-truth.mcap", sim.replace(channels={k: v for k, v in sim.channels.items() if k != "truth"}))
-    synthetic_plaza(folder / "plaza.mat")
-    return {"every": folder / "every.mcap", "sim": folder / "sim.mcap", "one-second": folder / "one-second.mcap",
-            "no-truth": folder / "no-truth.mcap", "mat": folder / "plaza.mat"}
 
 
 # -- the drive corpus -------------------------------------------------------------------------------------------

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 
 import pytest
-from drive_samples import every_channel_drive
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from test_foreign_and_bad_files import rows, write_foreign
@@ -19,18 +18,12 @@ from test_hardening_bad_input import DRIVE_COMMANDS, _check, rewrite, run_cli, s
 
 from graphpos.drive import CHANNEL_SPECS
 from graphpos.errors import DriveError, FileFormatError
-from graphpos.io import read_drive, read_estimates, write_drive
+from graphpos.io import read_drive, read_estimates
 
 #: A numpy warning would be a second line on the user's stderr.
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 COMMANDS = ("info", "run", "evaluate")
 
-
-@pytest.fixture(scope="module")
-def small(tmp_path_factory):
-    path = tmp_path_factory.mktemp("small") / "every.mcap"
-    write_drive(path, every_channel_drive(n=40))
-    return path
 
 
 #: case -> (channel, field, value written into row 1, what the line names after "channel 'X', row 1: ")

@@ -17,24 +17,16 @@ import math
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from drive_samples import every_channel_drive
-from test_hardening_bad_input import DRIVE_COMMANDS, _check, rewrite, run_cli, samples  # noqa: F401 - samples is a fixture
+from test_hardening_bad_input import DRIVE_COMMANDS, _check, rewrite, run_cli
 
 from graphpos.drive import ORIGIN_SPECS
 from graphpos.errors import FileFormatError
-from graphpos.io import read_drive, write_drive
+from graphpos.io import read_drive
 
 #: A numpy warning would be a second line on the user's stderr.
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 COMMANDS = ("info", "run", "evaluate")
 
-
-@pytest.fixture(scope="module")
-def small(tmp_path_factory):
-    """A short drive with every channel, maps, windows and params (quick to rewrite)."""
-    path = tmp_path_factory.mktemp("small") / "every.mcap"
-    write_drive(path, every_channel_drive(n=40))
-    return path
 
 
 def with_metadata(key: str, change):

@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 import pytest
-from test_hardening_bad_input import DRIVE_COMMANDS, _check, samples  # noqa: F401 - samples is a fixture
+from test_hardening_bad_input import DRIVE_COMMANDS, _check
 from test_mrclam import synthetic_mrclam
 
 from graphpos.errors import FileFormatError
