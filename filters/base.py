@@ -61,7 +61,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from graphpos.drive import Channel, Drive, Measurement
+from graphpos.drive import CHANNEL_NAMES, Channel, Drive, Measurement
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
 from graphpos.ignition import MAX_ODOMETRY_GAP_S, NOT_STARTED, Ignition, IgnitionConfig, StartState
@@ -156,9 +156,10 @@ class FilterEstimator(Estimator):
         self._last_odometry_s = {}
         self._lost_s: float | None = None
         self._bridged = dict(_BRIDGED_FIELDS) if drive.has_accelerometers else {}
-        self._t = self._first_time(drive)
-        if not self.needs_start:
-            self._begin(self._t, self._ignition.at(self._t))
+        self._t = -math.inf
+        #: An RFID-only filter begins at the first measurement it is given (the drive's
+        #: first in arrival order; live: the first received), not at a time read off the drive.
+        self._begin_at_first = not self.needs_start
 
     def _new_ignition(self, drive: Drive, user) -> Ignition:
         return Ignition(self._tag_en, drive.tags.wall_side, user=user, has_wheel=drive.has("wheel"), config=self._ignition_config())
@@ -260,20 +261,24 @@ class FilterEstimator(Estimator):
                     usable &= ~bad
         return usable
 
-    def _first_time(self, drive: Drive) -> float:
-        starts = [float(drive.channels[c].t_s[0]) for c in self.channels_used(drive)]
-        return min(starts) if starts else drive.start_s
-
     def channels_used(self, drive: Drive) -> tuple[str, ...]:
-        """The estimator's own channels, then the ones ignition alone reads before the start (see :data:`_START_CHANNELS`)."""
-        used = super().channels_used(drive)
+        """The estimator's own channels and the ones ignition alone reads before the start (see
+        :data:`_START_CHANNELS`), in the drive's channel order (``Estimator.channels_used``)."""
+        used = set(super().channels_used(drive))
         if self.needs_start:
-            used += tuple(c for c in _START_CHANNELS if drive.has(c) and c not in used)
-        return used
+            used |= {c for c in _START_CHANNELS if drive.has(c)}
+        return tuple(c for c in CHANNEL_NAMES if c in used)
+
+    def _begin_at(self, t_s: float) -> None:
+        """Begin an RFID-only filter at its first measurement's time (see ``start``)."""
+        self._begin_at_first = False
+        self._begin(t_s, self._ignition.at(t_s))
 
     def process(self, measurement: Measurement) -> list[OutputRow]:
         n0 = len(self._rows)
         m = measurement
+        if self._begin_at_first:
+            self._begin_at(m.t_s)
         usable = bool(self._finite_rows(m.channel, {k: np.array([x]) for k, x in m.values.items()})[0])
         if not usable or not self._follow_odometry(m.channel, m.t_s):
             return self._rows[n0:]  # a gap in the sensor, or in the odometry
@@ -421,6 +426,8 @@ class FilterEstimator(Estimator):
         while i < n_events:
             c, r = code[i], row[i]
             kind = names[c]
+            if self._begin_at_first:
+                self._begin_at(cols[c][0][r])
             if not usable[c][r] or not self._follow_odometry(kind, cols[c][0][r]):
                 i += 1
                 continue  # a gap in the sensor or in the odometry

@@ -28,7 +28,7 @@ import time
 from abc import ABC, abstractmethod
 from typing import Any, ClassVar
 
-from graphpos.drive import Drive, Measurement
+from graphpos.drive import CHANNEL_NAMES, Drive, Measurement
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.ignition import StartPose
@@ -142,9 +142,12 @@ class Estimator(ABC):
         return default_range_model(drive)
 
     def channels_used(self, drive: Drive) -> tuple[str, ...]:
-        """Channels fed to ``process``, in tie-break order."""
-        named = (*self.required_channels, *(c for group in self.required_any for c in group), *self.optional_channels)
-        return tuple(c for c in dict.fromkeys(named) if drive.has(c))
+        """Channels fed to ``process``, in tie-break order: the drive's channel order
+        (:data:`graphpos.drive.CHANNEL_NAMES`, ``imu`` first, so that a filter predicts before it
+        updates), the same for every estimator because it is the order a live feed delivers
+        readings of equal time in (:mod:`graphpos.live`)."""
+        named = {*self.required_channels, *(c for group in self.required_any for c in group), *self.optional_channels}
+        return tuple(c for c in CHANNEL_NAMES if c in named and drive.has(c))
 
     # -- online -------------------------------------------------------------
     @abstractmethod

@@ -229,7 +229,7 @@ def test_a_single_range_without_compass_never_starts(key):
     check_not_started(key, drive, run(key, drive))
 
 
-@pytest.mark.parametrize("key", keys_for(one_beacon(True), {"two-level-ekf": BUG_TWO_LEVEL_ONE_TAG}))
+@pytest.mark.parametrize("key", keys_for(one_beacon(True)))
 def test_one_beacon_with_compass_starts_once_the_turn_resolves_the_mirror(key):
     """Ranges to one beacon along a straight line fit the track and its mirror image about the line through
     the beacon equally well; the turn (with the compass) tells them apart, and the start comes then."""
