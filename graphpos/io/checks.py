@@ -3,7 +3,8 @@
 :data:`DRIVE_RULES` is the one table of what makes a drive unusable (level
 ``error``: every time stamp equal, a span of years; ``run`` and ``evaluate``
 refuse it in one line before any work) and what only deserves a word (level
-``warning``: no sensor rows, a long gap, every tag at one point; said on
+``warning``: no sensor rows, a long gap, every tag at one point, a
+recording whose writer was stopped before it closed the file; said on
 stderr and listed in ``run.json`` and ``results.json``), with the rules the
 reader enforces on every file listed alongside. :func:`drive_checks`
 returns the drive against each rule; ``graphpos info`` prints them as its
@@ -636,6 +637,14 @@ def _window_outside(drive: Drive) -> str | None:
     return None
 
 
+def _unclosed_recording(drive: Drive) -> str | None:
+    if drive.params.get("unclosed_recording") is not True:
+        return None
+    rows = any(len(ch) for ch in drive.channels.values())
+    ending = f"ending at t = {drive.end_s:.3f} s" if rows else "which holds no rows"
+    return f"the recording was not closed (its writer was stopped) and was read up to its last complete chunk, {ending}"
+
+
 @dataclass(frozen=True)
 class DriveRule:
     """One rule a drive is checked against (:data:`DRIVE_RULES`).
@@ -678,6 +687,8 @@ DRIVE_RULES: tuple[DriveRule, ...] = (
     DriveRule("sensor-gap", "warning", f"no stretch over {SENSOR_GAP_WARNING_S:g} s without a sensor row", _sensor_gap),
     DriveRule("tag-spread", "warning", "tags are not all at one point", _tags_at_one_point),
     DriveRule("window-span", "warning", "every window overlaps the drive's time span", _window_outside),
+    DriveRule("closed-file", "warning", "a recording was closed by its writer, not stopped while it wrote "
+              "(graphpos.io.mcap_recorder)", _unclosed_recording),
 )
 
 

@@ -13,7 +13,11 @@ messages). The files are standard MCAP (``mcap`` reads them with CRC checks;
     SummaryOffset per group, Footer, magic
 
 Chunks are zstd-compressed, about :data:`CHUNK_SIZE` bytes uncompressed, with
-a CRC of their content.
+a CRC of their content. The record writers (:class:`RecordOutput`,
+:func:`start_file`, :func:`write_metadata`, :func:`write_chunk`,
+:func:`finish_file`) also serve the incremental writer of ``graphpos live``
+(:mod:`graphpos.io.mcap_recorder`), whose unclosed files (no summary, no
+footer) :func:`read_mcap_contents` reads up to their last complete record.
 """
 
 from __future__ import annotations
@@ -51,12 +55,18 @@ from graphpos.io.files import open_input
 
 #: Uncompressed bytes of message records per chunk.
 CHUNK_SIZE = 4 * 1024 * 1024
+#: zstd level of the chunks: 4x faster than the default level, as small on this data.
+CHUNK_ZSTD_LEVEL = 1
 
 # A message record's fixed part: opcode, record length, channel id,
 # sequence, log time, publish time (MCAP spec, "Message").
 _MESSAGE_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq", "<u4"), ("log", "<u8"), ("pub", "<u8")])
+_MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # the same fields, one message at a time
 _RECORD_HEADER = struct.Struct("<BQ")
 _MESSAGE_CHANNEL = struct.Struct("<H")
+#: Start of the header's library string of ``graphpos live`` recordings:
+#: the only files read without a footer (:func:`read_mcap_contents`).
+LIVE_LIBRARY = "graphpos live"
 #: Largest record (and chunk content) read: a larger one is a corrupt file.
 _MAX_RECORD_BYTES = 2**30
 #: A footer record: opcode, length, summary start, summary offset start, summary CRC.
@@ -83,8 +93,9 @@ class Topic:
         return np.maximum.accumulate(self.log_ns) if self.log_ns.size else self.log_ns
 
 
-class _Output:
-    """A stream and the offset of the next byte written to it."""
+class RecordOutput:
+    """A stream and the offset of the next byte written to it (the file is
+    written from its first byte)."""
 
     def __init__(self, stream: BinaryIO) -> None:
         self.stream = stream
@@ -105,6 +116,11 @@ class _Output:
         return self.write(data), len(data)
 
 
+def message_record(channel_id: int, log_ns: int, publish_ns: int, payload: bytes) -> bytes:
+    """One message record (sequence 0), as it stands in a chunk."""
+    return _MESSAGE_RECORD.pack(Opcode.MESSAGE, 22 + len(payload), channel_id, 0, log_ns, publish_ns) + payload
+
+
 def _message_index(channel_id: int, log_ns: np.ndarray, offsets: np.ndarray) -> bytes:
     entries = np.column_stack([log_ns, offsets]).astype("<u8").tobytes()
     return _RECORD_HEADER.pack(Opcode.MESSAGE_INDEX, 6 + len(entries)) + struct.pack("<HI", channel_id, len(entries)) + entries
@@ -118,16 +134,87 @@ def _chunk_bounds(sizes: np.ndarray) -> list[tuple[int, int]]:
     return [(a, b) for a, b in zip(edges[:-1], edges[1:]) if b > a]
 
 
+def start_file(out: RecordOutput, library: str) -> None:
+    """The magic bytes and the header record."""
+    out.write(MCAP0_MAGIC)
+    out.record(Header(profile="", library=library))
+
+
+def write_metadata(out: RecordOutput, name: str, values: dict[str, str]) -> MetadataIndex:
+    """One metadata record; returns its summary index entry."""
+    offset, length = out.record(Metadata(name=name, metadata=values))
+    return MetadataIndex(offset=offset, length=length, name=name)
+
+
+def write_chunk(out: RecordOutput, compressor: zstandard.ZstdCompressor, data: bytes, channel_ids: np.ndarray,
+                log_ns: np.ndarray, offsets: np.ndarray) -> ChunkIndex:
+    """One zstd chunk of message records and its message indexes (one per
+    channel); returns its summary index entry.
+
+    Parameters
+    ----------
+    out : RecordOutput
+    compressor : zstandard.ZstdCompressor
+    data : bytes
+        The message records, back to back (at least one).
+    channel_ids, log_ns, offsets : array of int
+        Channel id, log time and offset in ``data`` of each message record.
+    """
+    compressed = compressor.compress(data)
+    start_ns, end_ns = int(log_ns.min()), int(log_ns.max())
+    chunk = Chunk(compression="zstd", data=compressed, message_start_time=start_ns, message_end_time=end_ns,
+                  uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data))
+    start, length = out.record(chunk)
+    index_offsets = {}
+    index_start = out.offset
+    for cid in np.unique(channel_ids).tolist():
+        pick = channel_ids == cid
+        index_offsets[cid] = out.write(_message_index(cid, log_ns[pick], offsets[pick]))
+    return ChunkIndex(
+        message_start_time=start_ns, message_end_time=end_ns, chunk_start_offset=start, chunk_length=length,
+        message_index_offsets=index_offsets, message_index_length=out.offset - index_start, compression="zstd",
+        compressed_size=len(compressed), uncompressed_size=len(data),
+    )
+
+
+def finish_file(out: RecordOutput, schemas: list[Schema], channels: list[Channel], statistics: Statistics,
+                chunk_indexes: list[ChunkIndex], metadata_indexes: list[MetadataIndex]) -> None:
+    """The data end record, the summary (schemas, channels, statistics,
+    chunk and metadata indexes, an offset per group), the footer and the
+    closing magic bytes."""
+    out.record(DataEnd(data_section_crc=0))
+    summary_start = out.offset
+    summary = RecordBuilder()
+    offsets = []
+    for opcode, records in (
+        (Opcode.SCHEMA, schemas),
+        (Opcode.CHANNEL, channels),
+        (Opcode.STATISTICS, [statistics]),
+        (Opcode.CHUNK_INDEX, chunk_indexes),
+        (Opcode.METADATA_INDEX, metadata_indexes),
+    ):
+        group_start = summary.count
+        for record in records:
+            record.write(summary)
+        if summary.count > group_start:
+            offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + group_start,
+                                         group_length=summary.count - group_start))
+    summary_offset_start = summary_start + summary.count
+    for record in offsets:
+        record.write(summary)
+    data = summary.end()
+    crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), zlib.crc32(data))
+    out.write(data)
+    out.record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
+    out.write(MCAP0_MAGIC)
+
+
 def write_mcap(stream: BinaryIO, library: str, metadata: dict[str, dict[str, str]], topics: list[Topic]) -> None:
     """Write a complete MCAP file of the given topics, merged by ``order_ns``
     (ties keep topic order, and each topic keeps its message order)."""
-    out = _Output(stream)
-    out.write(MCAP0_MAGIC)
-    out.record(Header(profile="", library=library))
-    metadata_indexes = []
-    for name, values in metadata.items():
-        offset, length = out.record(Metadata(name=name, metadata=values))
-        metadata_indexes.append(MetadataIndex(offset=offset, length=length, name=name))
+    out = RecordOutput(stream)
+    start_file(out, library)
+    metadata_indexes = [write_metadata(out, name, values) for name, values in metadata.items()]
     schemas: dict[str, Schema] = {}
     channels = []
     for topic in topics:
@@ -153,30 +240,13 @@ def write_mcap(stream: BinaryIO, library: str, metadata: dict[str, dict[str, str
     headers["cid"] = channel_id
     headers["log"] = headers["pub"] = log_ns
     chunk_indexes = []
-    compressor = zstandard.ZstdCompressor(level=1)  # 4x faster than the default level, as small on this data
+    compressor = zstandard.ZstdCompressor(level=CHUNK_ZSTD_LEVEL)
     for a, b in _chunk_bounds(lengths + 31):
         raw_headers = headers[a:b].tobytes()
         parts = [raw_headers[i : i + 31] for i in range(0, len(raw_headers), 31)]
         data = b"".join(chain.from_iterable(zip(parts, payloads[a:b])))
         offsets = np.r_[0, np.cumsum(lengths[a:b] + 31)[:-1]].astype(np.uint64)
-        times = log_ns[a:b]
-        compressed = compressor.compress(data)
-        chunk = Chunk(compression="zstd", data=compressed, message_start_time=int(times.min()), message_end_time=int(times.max()),
-                      uncompressed_crc=zlib.crc32(data), uncompressed_size=len(data))
-        start, length = out.record(chunk)
-        ids = channel_id[a:b]
-        index_offsets = {}
-        index_start = out.offset
-        for cid in np.unique(ids).tolist():
-            pick = ids == cid
-            index_offsets[cid] = out.write(_message_index(cid, times[pick], offsets[pick]))
-        chunk_indexes.append(ChunkIndex(
-            message_start_time=chunk.message_start_time, message_end_time=chunk.message_end_time,
-            chunk_start_offset=start, chunk_length=length, message_index_offsets=index_offsets,
-            message_index_length=out.offset - index_start, compression="zstd",
-            compressed_size=len(compressed), uncompressed_size=len(data),
-        ))
-    out.record(DataEnd(data_section_crc=0))
+        chunk_indexes.append(write_chunk(out, compressor, data, channel_id[a:b], log_ns[a:b], offsets))
 
     statistics = Statistics(
         message_count=total, schema_count=len(schemas), channel_count=len(channels), attachment_count=0,
@@ -184,30 +254,7 @@ def write_mcap(stream: BinaryIO, library: str, metadata: dict[str, dict[str, str
         message_start_time=int(log_ns.min()) if total else 0, message_end_time=int(log_ns.max()) if total else 0,
         channel_message_counts={cid: n for cid, n in enumerate(counts, start=1) if n},
     )
-    summary_start = out.offset
-    summary = RecordBuilder()
-    offsets = []
-    for opcode, records in (
-        (Opcode.SCHEMA, schemas.values()),
-        (Opcode.CHANNEL, channels),
-        (Opcode.STATISTICS, [statistics]),
-        (Opcode.CHUNK_INDEX, chunk_indexes),
-        (Opcode.METADATA_INDEX, metadata_indexes),
-    ):
-        group_start = summary.count
-        for record in records:
-            record.write(summary)
-        if summary.count > group_start:
-            offsets.append(SummaryOffset(group_opcode=opcode, group_start=summary_start + group_start,
-                                         group_length=summary.count - group_start))
-    summary_offset_start = summary_start + summary.count
-    for record in offsets:
-        record.write(summary)
-    data = summary.end()
-    crc = zlib.crc32(struct.pack("<BQQQ", Opcode.FOOTER, 20, summary_start, summary_offset_start), zlib.crc32(data))
-    out.write(data)
-    out.record(Footer(summary_start=summary_start, summary_offset_start=summary_offset_start, summary_crc=crc))
-    out.write(MCAP0_MAGIC)
+    finish_file(out, list(schemas.values()), channels, statistics, chunk_indexes, metadata_indexes)
 
 
 # ---------------------------------------------------------------------------
@@ -227,7 +274,9 @@ _USED_OPCODES = frozenset({Opcode.HEADER, Opcode.SCHEMA, Opcode.CHANNEL, Opcode.
 class McapContents:
     """What an MCAP file holds: schemas and channels by id, the payloads of
     each channel's messages in file order, metadata records by name (the
-    first of each name), the writer's library string."""
+    first of each name), the writer's library string; ``unclosed``: the file
+    is a recording its writer never closed, read up to its last complete
+    record (:func:`read_mcap_contents`)."""
 
     def __init__(self) -> None:
         self.schemas: dict[int, Schema] = {}
@@ -236,6 +285,7 @@ class McapContents:
         self.metadata: dict[str, dict[str, str]] = {}
         self.library = ""
         self.statistics: Statistics | None = None
+        self.unclosed = False
 
     def _record(self, opcode: int, body: bytes | memoryview) -> None:
         if opcode == Opcode.SCHEMA:
@@ -286,12 +336,19 @@ class McapContents:
             else:
                 self._record(opcode, memoryview(data)[start:pos])
 
-    def _walk_file(self, stream: BinaryIO, footer_at: int) -> None:
-        """Walk the records from the stream's position to the footer at
-        offset ``footer_at``, reading only the records in
-        :data:`_USED_OPCODES`, one at a time."""
+    def _walk_file(self, stream: BinaryIO, end_at: int, unclosed: bool) -> None:
+        """Walk the records from the stream's position to offset ``end_at``
+        (the footer), reading only the records in :data:`_USED_OPCODES`,
+        one at a time.
+
+        ``unclosed``: the file has no footer and ``end_at`` is its size; the
+        walk ends at the data end record, or before a record the file ends
+        inside (cut off by its writer's stop).
+        """
         pos = stream.tell()
-        while pos < footer_at:
+        while pos < end_at:
+            if unclosed and pos + 9 > end_at:
+                return
             header = stream.read(9)
             if len(header) < 9:
                 raise _Corrupt("a record header is cut off")
@@ -300,8 +357,12 @@ class McapContents:
                 raise _Corrupt(f"no record at byte {pos} (opcode 0)")
             if opcode == Opcode.FOOTER:
                 raise _Corrupt(f"a footer record at byte {pos}, before the end of the file")
+            if unclosed and opcode == Opcode.DATA_END:
+                return  # the summary that may follow is the writer's, cut off or not: the data is all read
             pos += 9 + length
-            if pos > footer_at:
+            if pos > end_at:
+                if unclosed and length <= _MAX_RECORD_BYTES:
+                    return
                 raise _Corrupt(f"a record (opcode {opcode:#x}) runs past the end of the file")
             if opcode not in _USED_OPCODES:
                 stream.seek(pos)
@@ -333,9 +394,32 @@ def _chunk_data(body: bytes | memoryview) -> bytes:
     return data
 
 
-def _footer_at(stream: BinaryIO, size_bytes: int, path: Path) -> int:
-    """Offset of the footer record, checked with the magic bytes at both
-    ends before anything else is read."""
+def _live_header(stream: BinaryIO, size_bytes: int) -> bool:
+    """True when the record after the magic bytes is a header whose library
+    starts with :data:`LIVE_LIBRARY` (the stream is left anywhere)."""
+    header = stream.read(9)
+    if len(header) < 9:
+        return False
+    opcode, length = _RECORD_HEADER.unpack(header)
+    if opcode != Opcode.HEADER or len(MCAP0_MAGIC) + 9 + length > size_bytes:
+        return False  # not a header, or one cut off
+    try:
+        library = Header.read(ReadDataStream(BytesIO(stream.read(length)))).library
+    except Exception:  # noqa: BLE001 - any failure decoding the bytes: not a header
+        return False
+    return library.startswith(LIVE_LIBRARY)
+
+
+def _data_bounds(stream: BinaryIO, size_bytes: int, path: Path) -> tuple[int, bool]:
+    """Where the walk of the records ends, and whether the file is an
+    unclosed recording of ``graphpos live``; checked with the magic bytes
+    at both ends before anything else is read.
+
+    A file with a footer ends its walk at the footer. A file without one is
+    refused, unless its header names :data:`LIVE_LIBRARY` as its writer: its
+    records are then walked to the end of the file. The stream is left
+    after the opening magic bytes.
+    """
     if stream.read(len(MCAP0_MAGIC)) != MCAP0_MAGIC:
         raise FileFormatError(f"{path}: not an MCAP file (no MCAP magic bytes at the start)")
     footer_at = size_bytes - len(MCAP0_MAGIC) - _FOOTER_BYTES
@@ -344,7 +428,11 @@ def _footer_at(stream: BinaryIO, size_bytes: int, path: Path) -> int:
         tail = stream.read(_FOOTER_BYTES + len(MCAP0_MAGIC))
         if tail[_FOOTER_BYTES:] == MCAP0_MAGIC and _RECORD_HEADER.unpack_from(tail) == (Opcode.FOOTER, _FOOTER_BYTES - 9):
             stream.seek(len(MCAP0_MAGIC))
-            return footer_at
+            return footer_at, False
+    stream.seek(len(MCAP0_MAGIC))
+    if _live_header(stream, size_bytes):
+        stream.seek(len(MCAP0_MAGIC))
+        return size_bytes, True
     raise FileFormatError(f"{path}: truncated MCAP file (no footer; was writing interrupted?)")
 
 
@@ -357,12 +445,19 @@ def read_mcap_contents(path: Path) -> McapContents:
     records are read one at a time (a record is at most
     :data:`_MAX_RECORD_BYTES`), skipping those nothing reads (indexes,
     attachments), so a broken file is refused without reading it whole.
+
+    A file without a footer is truncated and refused, except an unclosed
+    recording of ``graphpos live`` (:class:`graphpos.io.mcap_recorder.McapRecorder`,
+    whose header's library starts with :data:`LIVE_LIBRARY`): its records
+    are read from the start up to the last complete one (a chunk or record
+    the file ends inside is left out; a complete one that is corrupt is
+    still an error), and ``unclosed`` is set in the result.
     """
     contents = McapContents()
     with open_input(path) as (stream, size_bytes):
-        footer_at = _footer_at(stream, size_bytes, path)
+        end_at, contents.unclosed = _data_bounds(stream, size_bytes, path)
         try:
-            contents._walk_file(stream, footer_at)
+            contents._walk_file(stream, end_at, contents.unclosed)
         except _Corrupt as exc:
             raise FileFormatError(f"{path}: corrupt MCAP file: {exc}") from None
         except OSError as exc:

@@ -63,7 +63,27 @@ integer nanoseconds, shifted by ``time_base_s`` (metadata; 0 unless the
 drive has negative times) and clipped to the uint64 range. They order the
 file and drive the viewer; the exact float seconds are in each message's
 ``t_s`` field (and ``arrival_s`` for late readings). On reading, each
-channel's rows keep the order of its messages in the file.
+channel's rows keep the order of its messages in the file, with one
+exception: in a file ``graphpos live`` wrote (the header's library starts
+with ``graphpos live``), a channel with an ``arrival_s`` field (``rfid``,
+``rsu``) whose rows are in arrival order (``t_s`` goes back at a late
+reading while ``arrival_s`` never does, as the recorder writes them) is
+sorted stably by ``t_s``. Any other channel whose ``t_s`` goes back is
+refused: :func:`write_drive` and the importers write every channel in
+``t_s`` order, so there it is damage, not a late reading.
+
+Writing row by row
+------------------
+``graphpos live`` records as it runs (:mod:`graphpos.io.mcap_recorder`)
+with the encoders :func:`write_drive` uses, one row at a time:
+:func:`channel_schema`, :func:`encode_row`, :func:`estimate_schema`,
+:func:`encode_estimate_row`, :func:`estimate_channel_metadata`,
+:func:`drive_metadata`, :func:`log_time_ns`, and the viewing messages
+:func:`location_fix_payload` (:data:`LOCATION_FIX_SCHEMA`),
+:func:`pose_payload` (:data:`POSE_IN_FRAME_SCHEMA`) and
+:func:`map_geojson_payload` (:data:`GEOJSON_SCHEMA`). A recording that was
+never closed reads up to its last complete chunk, its drive's params
+marked ``"unclosed_recording": True`` (:func:`read_drive`).
 """
 
 from __future__ import annotations
@@ -72,21 +92,21 @@ import json
 import json.scanner
 import os
 from pathlib import Path
-from typing import Any, Iterable, Iterator, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 from mcap.records import Channel as McapChannel
 
 from graphpos import __version__
 from graphpos.colors import rgb_of
-from graphpos.drive import CHANNEL_SPECS, Channel, Drive, GeoOrigin, RsuMap, TagMap, Window
+from graphpos.drive import CHANNEL_SPECS, Channel, ColumnSpec, Drive, GeoOrigin, RsuMap, TagMap, Window
 from graphpos.errors import ConfigError, DriveError, FileFormatError
-from graphpos.estimate import Estimate
+from graphpos.estimate import Estimate, OutputRow
 from graphpos.io.outputs import atomic_output
 from graphpos.io.geo import enu_to_geodetic
 from graphpos.io.json_rules import (DRIVE_METADATA_RULES, ESTIMATE_METADATA_RULES, JsonRuleError, Rule, check_value,
                                     number_column, number_rows)
-from graphpos.io.mcap_container import McapContents, Topic, read_mcap_contents, write_mcap
+from graphpos.io.mcap_container import LIVE_LIBRARY, McapContents, Topic, read_mcap_contents, write_mcap
 
 #: Format written in the ``graphpos.drive`` metadata record.
 FORMAT_NAME = "graphpos.drive"
@@ -110,14 +130,30 @@ def _schema_name(kind: str) -> str:
 _KIND_BY_SCHEMA = {_schema_name(kind): kind for kind in CHANNEL_SPECS}
 
 
+def _specs_of(kind: str) -> tuple[ColumnSpec, ...]:
+    """The column specs of channel ``kind``; DriveError for an unknown channel."""
+    if kind not in CHANNEL_SPECS:
+        raise DriveError(kind, None, f"unknown channel (known: {', '.join(CHANNEL_SPECS)})")
+    return CHANNEL_SPECS[kind]
+
+
 # ---------------------------------------------------------------------------
 # JSON schemas
 # ---------------------------------------------------------------------------
 
 
-def _channel_schema(kind: str) -> dict[str, Any]:
+def channel_schema(kind: str) -> dict[str, Any]:
+    """The JSON schema of the messages of channel ``kind`` (its ``title`` is
+    the schema name, ``graphpos.<kind>``).
+
+    Raises
+    ------
+    DriveError
+        An unknown channel.
+    """
+    specs = _specs_of(kind)
     props = {}
-    for spec in CHANNEL_SPECS[kind]:
+    for spec in specs:
         if spec.integer:
             props[spec.name] = {"type": "integer", "minimum": spec.lo, "maximum": spec.hi}
         elif spec.required:
@@ -129,11 +165,12 @@ def _channel_schema(kind: str) -> dict[str, Any]:
         "description": f"One row of the graphpos '{kind}' channel (units in the field names).",
         "type": "object",
         "properties": props,
-        "required": [s.name for s in CHANNEL_SPECS[kind] if s.required],
+        "required": [s.name for s in specs if s.required],
     }
 
 
-def _estimate_schema() -> dict[str, Any]:
+def estimate_schema() -> dict[str, Any]:
+    """The JSON schema of the messages of an estimate (schema name ``graphpos.estimate``)."""
     nullable = {"type": ["number", "null"]}
     return {
         "title": _ESTIMATE_SCHEMA,
@@ -162,7 +199,8 @@ _TIME = {
     "type": "object",
     "properties": {"sec": {"type": "integer", "minimum": 0}, "nsec": {"type": "integer", "minimum": 0, "maximum": 999999999}},
 }
-_LOCATION_FIX_SCHEMA = {
+#: Foxglove's well-known location fix schema (the fields graphpos writes).
+LOCATION_FIX_SCHEMA = {
     "title": "foxglove.LocationFix",
     "type": "object",
     "properties": {
@@ -183,7 +221,8 @@ _LOCATION_FIX_SCHEMA = {
 }
 _VEC3 = {"type": "object", "properties": {k: {"type": "number"} for k in "xyz"}}
 _QUAT = {"type": "object", "properties": {k: {"type": "number"} for k in "xyzw"}}
-_POSE_IN_FRAME_SCHEMA = {
+#: Foxglove's well-known pose schema (the fields graphpos writes).
+POSE_IN_FRAME_SCHEMA = {
     "title": "foxglove.PoseInFrame",
     "type": "object",
     "properties": {
@@ -192,7 +231,8 @@ _POSE_IN_FRAME_SCHEMA = {
         "pose": {"type": "object", "properties": {"position": _VEC3, "orientation": _QUAT}},
     },
 }
-_GEOJSON_SCHEMA = {
+#: Foxglove's well-known GeoJSON schema (the map of tags and RSUs).
+GEOJSON_SCHEMA = {
     "title": "foxglove.GeoJSON",
     "type": "object",
     "properties": {"geojson": {"type": "string", "description": "GeoJSON data encoded as a string"}},
@@ -216,8 +256,13 @@ def _float_texts(values: np.ndarray) -> list[str]:
 
 
 def _int_texts(values: np.ndarray) -> list[str]:
+    """JSON integers of whole float64 values; the float texts when a value
+    is not a whole number within the int64 range (the reader refuses it then,
+    naming the row), so that nothing is rounded on the way."""
     arr = np.asarray(values, dtype=np.float64)
-    if not np.all(np.isfinite(arr)):
+    with np.errstate(invalid="ignore"):
+        whole = np.isfinite(arr) & (arr == np.round(arr)) & (np.abs(arr) < 2.0**63)
+    if not np.all(whole):
         return _float_texts(arr)
     return list(map(str, arr.astype(np.int64).tolist()))
 
@@ -233,6 +278,13 @@ def _time_ns(t_s: np.ndarray, base_s: float) -> np.ndarray:
     with np.errstate(over="ignore", invalid="ignore"):
         ns = np.round((np.asarray(t_s, dtype=np.float64) - base_s) * 1e9)
     return np.clip(np.nan_to_num(ns, nan=0.0), 0.0, _MAX_UINT64_NS).astype(np.uint64)
+
+
+def log_time_ns(t_s: float, time_base_s: float = 0.0) -> int:
+    """The message log time of a row at ``t_s``: integer nanoseconds after
+    ``time_base_s`` (the ``time_base_s`` of :func:`drive_metadata`), clipped
+    to the uint64 range (0 for NaN)."""
+    return int(_time_ns(np.array([t_s]), time_base_s)[0])
 
 
 def _stamps(ns: np.ndarray) -> tuple[list[str], list[str]]:
@@ -285,7 +337,41 @@ def _poses(t_ns: np.ndarray, east_m, north_m, yaw_rad) -> list[bytes]:
     ]
 
 
-def _map_geojson(drive: Drive, origin: GeoOrigin) -> bytes:
+def location_fix_payload(t_ns: int, east_m: float, north_m: float, var_en_m2: tuple[float, float] | None,
+                         origin: GeoOrigin, name: str | None) -> bytes:
+    """One ``foxglove.LocationFix`` message (:data:`LOCATION_FIX_SCHEMA`), as the viewing topics hold them.
+
+    Parameters
+    ----------
+    t_ns : int
+        Its time stamp (the message's log time).
+    east_m, north_m : float
+        Position in the drive's local frame.
+    var_en_m2 : (float, float) or None
+        East and north variances (a diagonal covariance), None where unknown.
+    origin : GeoOrigin
+        Geodetic origin of the local frame.
+    name : str or None
+        The estimator (or ``truth``) whose colour the fix carries
+        (:func:`graphpos.colors.rgb_of`); None for none (GNSS, RSU fixes).
+    """
+    var = None if var_en_m2 is None else (np.array([var_en_m2[0]], dtype=np.float64), np.array([var_en_m2[1]], dtype=np.float64))
+    return _location_fixes(np.array([t_ns], dtype=np.uint64), np.array([east_m], dtype=np.float64),
+                           np.array([north_m], dtype=np.float64), var, origin, name)[0]
+
+
+def pose_payload(t_ns: int, east_m: float, north_m: float, yaw_rad: float | None) -> bytes:
+    """One ``foxglove.PoseInFrame`` message (:data:`POSE_IN_FRAME_SCHEMA`) in frame
+    :data:`POSE_FRAME`, as the viewing topics hold them; a yaw of None or NaN
+    is drawn as 0."""
+    yaw = None if yaw_rad is None else np.array([yaw_rad], dtype=np.float64)
+    return _poses(np.array([t_ns], dtype=np.uint64), np.array([east_m], dtype=np.float64),
+                  np.array([north_m], dtype=np.float64), yaw)[0]
+
+
+def map_geojson_payload(drive: Drive, origin: GeoOrigin) -> bytes:
+    """The ``foxglove.GeoJSON`` message of the ``/map`` topic (:data:`GEOJSON_SCHEMA`):
+    the drive's tags (with wall side, group, layouts) and RSUs as points about ``origin``."""
     features = []
     tags = drive.tags
     lat, lon = enu_to_geodetic(tags.east_m, tags.north_m, origin)
@@ -322,7 +408,28 @@ def _dumps(value: Any, what: str) -> str:
         raise ConfigError(f"{what} cannot be stored in the file: {exc}") from None
 
 
-def _drive_metadata(drive: Drive, origin: GeoOrigin, base_s: float) -> dict[str, str]:
+def drive_metadata(drive: Drive, origin: GeoOrigin | None = None, time_base_s: float | None = None) -> dict[str, str]:
+    """The ``graphpos.drive`` metadata record of a drive: format, name,
+    origin, params, windows, tag and RSU maps, time base.
+
+    Parameters
+    ----------
+    drive : Drive
+        Its channels matter only for the default time base.
+    origin : GeoOrigin, optional
+        Defaults to ``drive.origin``.
+    time_base_s : float, optional
+        What the message log times count from (:func:`log_time_ns`):
+        defaults to 0, or the whole second before the drive's start when it
+        is negative.
+
+    Raises
+    ------
+    ConfigError
+        Params that are not JSON-serialisable.
+    """
+    origin = origin if origin is not None else drive.origin
+    base_s = time_base_s if time_base_s is not None else _time_base_s(drive, ())
     tags, rsus = drive.tags, drive.rsus
     return {
         "format": f"{FORMAT_NAME}/{FORMAT_VERSION}",
@@ -349,34 +456,76 @@ def _topic(name: str, schema: dict[str, Any], log_ns: np.ndarray, payloads: list
     return Topic(name, schema["title"], json.dumps(schema).encode(), log_ns, payloads, metadata or {})
 
 
+def _encode_columns(kind: str, columns: Mapping[str, np.ndarray]) -> list[bytes]:
+    """One JSON message per row of the columns of channel ``kind`` (every
+    column of its specs), fields in spec order."""
+    specs = CHANNEL_SPECS[kind]
+    texts = [(_int_texts if spec.integer else _float_texts)(columns[spec.name]) for spec in specs]
+    return _encode_rows([spec.name for spec in specs], texts)
+
+
 def _encode_channel(ch: Channel) -> list[bytes]:
     """One JSON message per row, encoded in batches (the per-value texts
     of a whole hour-long channel would take hundreds of MB)."""
-    names = [spec.name for spec in ch.specs]
     payloads: list[bytes] = []
     for first in range(0, len(ch), _BATCH_ROWS):
         rows = slice(first, first + _BATCH_ROWS)
-        texts = [(_int_texts if spec.integer else _float_texts)(ch[spec.name][rows]) for spec in ch.specs]
-        payloads += _encode_rows(names, texts)
+        payloads += _encode_columns(ch.kind, {name: column[rows] for name, column in ch.columns.items()})
     return payloads
+
+
+def encode_row(kind: str, values: Mapping[str, float]) -> bytes:
+    """One message of channel ``kind``: the JSON of one row, as
+    :func:`write_drive` writes each row (fields in
+    :data:`~graphpos.drive.CHANNEL_SPECS` order).
+
+    Parameters
+    ----------
+    kind : str
+        The channel.
+    values : mapping of str to float
+        Column name -> value, as :meth:`graphpos.drive.Drive.measurements`
+        gives a row. A missing optional column is NaN (``null``), a missing
+        ``arrival_s`` is ``t_s``, as in a :class:`~graphpos.drive.Channel`.
+        Values are written as they are (a bad one is refused on reading).
+
+    Raises
+    ------
+    DriveError
+        An unknown channel or column, a missing required column.
+    """
+    specs = _specs_of(kind)
+    unknown = set(values) - {spec.name for spec in specs}
+    if unknown:
+        raise DriveError(kind, None, f"unknown column(s) {sorted(unknown)}")
+    columns = {}
+    for spec in specs:
+        if spec.name in values:
+            value = values[spec.name]
+        elif spec.required:
+            raise DriveError(kind, None, f"missing required column '{spec.name}'")
+        else:
+            value = values["t_s"] if spec.name == "arrival_s" else np.nan
+        columns[spec.name] = np.array([value], dtype=np.float64)
+    return _encode_columns(kind, columns)[0]
 
 
 def _drive_topics(drive: Drive, origin: GeoOrigin, base_s: float) -> list[Topic]:
     topics = []
     for kind, ch in drive.channels.items():
         t_ns = _time_ns(ch.t_s, base_s)
-        topics.append(_topic(f"/{kind}", _channel_schema(kind), t_ns, _encode_channel(ch)))
+        topics.append(_topic(f"/{kind}", channel_schema(kind), t_ns, _encode_channel(ch)))
     if drive.has("truth"):
         truth = drive.truth
         keep = _thin(truth.t_s, VIEW_RATE_HZ)
         t_ns = _time_ns(truth.t_s[keep], base_s)
         e, n = truth.east_m[keep], truth.north_m[keep]
-        topics.append(_topic("/truth/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, n, None, origin, "truth")))
-        topics.append(_topic("/truth/pose", _POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, n, truth.yaw_rad[keep])))
+        topics.append(_topic("/truth/fix", LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, n, None, origin, "truth")))
+        topics.append(_topic("/truth/pose", POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, n, truth.yaw_rad[keep])))
     if drive.has("gnss"):
         g = drive.gnss
         t_ns = _time_ns(g.t_s, base_s)
-        topics.append(_topic("/gnss/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, g.east_m, g.north_m, (g.sigma_m**2, g.sigma_m**2), origin)))
+        topics.append(_topic("/gnss/fix", LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, g.east_m, g.north_m, (g.sigma_m**2, g.sigma_m**2), origin)))
     if drive.has("rsu"):
         r = drive.rsu
         fix = np.isfinite(r.east_m) & np.isfinite(r.north_m)
@@ -384,10 +533,72 @@ def _drive_topics(drive: Drive, origin: GeoOrigin, base_s: float) -> list[Topic]
             t_ns = _time_ns(r.t_s[fix], base_s)
             var = r.sigma_m[fix] ** 2
             data = _location_fixes(t_ns, r.east_m[fix], r.north_m[fix], (var, var), origin)
-            topics.append(_topic("/rsu/fix", _LOCATION_FIX_SCHEMA, t_ns, data))
+            topics.append(_topic("/rsu/fix", LOCATION_FIX_SCHEMA, t_ns, data))
     if len(drive.tags) or len(drive.rsus):
-        topics.append(_topic("/map", _GEOJSON_SCHEMA, _time_ns(np.array([drive.start_s]), base_s), [_map_geojson(drive, origin)]))
+        topics.append(_topic("/map", GEOJSON_SCHEMA, _time_ns(np.array([drive.start_s]), base_s), [map_geojson_payload(drive, origin)]))
     return topics
+
+
+def _estimate_payloads(columns: Sequence[np.ndarray | None]) -> list[bytes]:
+    """One JSON message per output epoch from the (N,) columns of
+    :data:`_ESTIMATE_FIELDS` (None for a quantity not estimated), the last
+    one the (N, 2, 2) covariances."""
+    *vectors, cov_en_m2 = columns
+    n = len(vectors[0])
+    texts = [_float_texts(arr) if arr is not None else ["null"] * n for arr in vectors]
+    if cov_en_m2 is not None:
+        flat = _float_texts(np.asarray(cov_en_m2, dtype=np.float64).reshape(-1))
+        texts.append(["[" + ",".join(flat[4 * i : 4 * i + 4]) + "]" for i in range(n)])
+    else:
+        texts.append(["null"] * n)
+    return _encode_rows(_ESTIMATE_FIELDS, texts)
+
+
+def encode_estimate_row(row: OutputRow) -> bytes:
+    """One message of an ``/estimates/<name>`` topic: the JSON of one output
+    epoch, as :func:`write_drive` writes each epoch of an estimate (null
+    where the row has None)."""
+    columns = [None if getattr(row, name) is None else np.array([getattr(row, name)], dtype=np.float64)
+               for name in _ESTIMATE_FIELDS[:-1]]
+    cov = None if row.cov_en_m2 is None else np.asarray(row.cov_en_m2, dtype=np.float64).reshape(1, 2, 2)
+    return _estimate_payloads([*columns, cov])[0]
+
+
+def estimate_channel_metadata(name: str, fields: Iterable[str], rate_hz: float, wall_time_s: float = float("nan"),
+                              diagnostics: dict[str, Any] | None = None) -> dict[str, str]:
+    """The channel metadata of an ``/estimates/<name>`` topic.
+
+    Parameters
+    ----------
+    name : str
+        The estimator.
+    fields : iterable of str
+        The optional fields it estimates (of ``v_east_mps``, ``v_north_mps``,
+        ``yaw_rad``, ``cov_en_m2``); the others read back as None.
+    rate_hz : float
+        Nominal output rate.
+    wall_time_s : float
+        Processing time (NaN: unknown, e.g. while running live).
+    diagnostics : dict, optional
+        JSON-serialisable counters and figures (none by default).
+
+    Raises
+    ------
+    ConfigError
+        An unknown field, diagnostics that are not JSON-serialisable.
+    """
+    fields = set(fields)
+    unknown = fields - set(_OPTIONAL_ESTIMATE_FIELDS)
+    if unknown:
+        raise ConfigError(f"estimate '{name}': unknown optional field(s) {sorted(unknown)} "
+                          f"(known: {', '.join(_OPTIONAL_ESTIMATE_FIELDS)})")
+    return {
+        "estimator": name,
+        "fields": ",".join(f for f in _OPTIONAL_ESTIMATE_FIELDS if f in fields),
+        "rate_hz": repr(float(rate_hz)),
+        "wall_time_s": repr(float(wall_time_s)),
+        "diagnostics": _dumps(diagnostics or {}, f"diagnostics of estimate '{name}'"),
+    }
 
 
 def _estimate_topics(estimates: Sequence[Estimate], origin: GeoOrigin, base_s: float) -> list[Topic]:
@@ -399,34 +610,19 @@ def _estimate_topics(estimates: Sequence[Estimate], origin: GeoOrigin, base_s: f
         if not est.name or est.name in seen:
             raise ConfigError(f"estimate name {est.name!r} is empty or used twice; each estimate needs its own name")
         seen.add(est.name)
-        n = len(est)
         present = [f for f in _OPTIONAL_ESTIMATE_FIELDS if getattr(est, f) is not None]
-        texts = []
-        for name in _ESTIMATE_FIELDS[:-1]:
-            arr = getattr(est, name)
-            texts.append(_float_texts(arr) if arr is not None else ["null"] * n)
-        if est.cov_en_m2 is not None:
-            flat = _float_texts(est.cov_en_m2.reshape(-1))
-            texts.append(["[" + ",".join(flat[4 * i : 4 * i + 4]) + "]" for i in range(n)])
-        else:
-            texts.append(["null"] * n)
+        meta = estimate_channel_metadata(est.name, present, est.rate_hz, est.wall_time_s, est.diagnostics)
         t_ns = _time_ns(est.t_s, base_s)
-        meta = {
-            "estimator": est.name,
-            "fields": ",".join(present),
-            "rate_hz": repr(float(est.rate_hz)),
-            "wall_time_s": repr(float(est.wall_time_s)),
-            "diagnostics": _dumps(est.diagnostics, f"diagnostics of estimate '{est.name}'"),
-        }
         topic = f"/estimates/{est.name}"
-        topics.append(_topic(topic, _estimate_schema(), t_ns, _encode_rows(_ESTIMATE_FIELDS, texts), meta))
+        payloads = _estimate_payloads([getattr(est, name) for name in _ESTIMATE_FIELDS])
+        topics.append(_topic(topic, estimate_schema(), t_ns, payloads, meta))
         keep = _thin(est.t_s, VIEW_RATE_HZ)
         t_ns = t_ns[keep]
         e, nn = est.east_m[keep], est.north_m[keep]
         var = (est.cov_en_m2[keep, 0, 0], est.cov_en_m2[keep, 1, 1]) if est.cov_en_m2 is not None else None
         yaw = est.yaw_rad[keep] if est.yaw_rad is not None else None
-        topics.append(_topic(f"{topic}/fix", _LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, nn, var, origin, est.name)))
-        topics.append(_topic(f"{topic}/pose", _POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, nn, yaw)))
+        topics.append(_topic(f"{topic}/fix", LOCATION_FIX_SCHEMA, t_ns, _location_fixes(t_ns, e, nn, var, origin, est.name)))
+        topics.append(_topic(f"{topic}/pose", POSE_IN_FRAME_SCHEMA, t_ns, _poses(t_ns, e, nn, yaw)))
     return topics
 
 
@@ -465,7 +661,7 @@ def write_drive(path: str | os.PathLike, drive: Drive, estimates: Iterable[Estim
     estimates = list(estimates)
     origin = origin if origin is not None else drive.origin
     base_s = _time_base_s(drive, estimates)
-    metadata = _drive_metadata(drive, origin, base_s)
+    metadata = drive_metadata(drive, origin, base_s)
     topics = _drive_topics(drive, origin, base_s) + _estimate_topics(estimates, origin, base_s)
     with atomic_output(path) as stream:
         write_mcap(stream, f"graphpos {__version__}", {FORMAT_NAME: metadata}, topics)
@@ -536,7 +732,9 @@ def _decode_columns(payloads: list[bytes], names: Sequence[str], where: str) -> 
     return {name: np.concatenate(parts[name]) if parts[name] else empty.get(name, np.zeros(0)) for name in names}, present
 
 
-def _decode_channel(kind: str, payloads: list[bytes], where: str) -> Channel:
+def _decode_channel(kind: str, payloads: list[bytes], where: str, arrival_order: bool) -> Channel:
+    """The channel of a topic's messages; ``arrival_order``: the writer may
+    have written rows in arrival order (:func:`_arrival_ordered`)."""
     specs = CHANNEL_SPECS[kind]
     try:
         decoded, present = _decode_columns(payloads, [s.name for s in specs], where)
@@ -552,7 +750,23 @@ def _decode_channel(kind: str, payloads: list[bytes], where: str) -> Channel:
             if missing.any():
                 raise DriveError(kind, int(np.argmax(missing)), f"field '{spec.name}' is missing, null or NaN")
         columns[spec.name] = arr
-    return Channel(kind, columns)
+    order = _arrival_ordered(columns) if arrival_order else None
+    if order is None:
+        return Channel(kind, columns)
+    try:
+        return Channel(kind, {name: arr[order] for name, arr in columns.items()})
+    except DriveError as exc:  # name the row as the file holds it
+        raise DriveError(kind, None if exc.row is None else int(order[exc.row]), exc.reason) from None
+
+
+def _arrival_ordered(columns: dict[str, np.ndarray]) -> np.ndarray | None:
+    """The stable ``t_s`` order of rows recorded in arrival order: ``t_s``
+    goes back somewhere and ``arrival_s`` (given) never does; None for rows
+    to be taken in file order."""
+    t_s, arrival_s = columns["t_s"], columns.get("arrival_s")
+    if arrival_s is None or not (np.diff(t_s) < 0).any() or not (np.diff(arrival_s) >= 0).all():
+        return None
+    return np.argsort(t_s, kind="stable")
 
 
 def _graphpos_channels(contents: McapContents, path: Path, schema_names: set[str]) -> list[tuple[str, McapChannel]]:
@@ -612,13 +826,14 @@ def _drive_from(contents: McapContents, path: Path) -> Drive:
     if name_part != FORMAT_NAME or not version.isdigit() or int(version) > FORMAT_VERSION:
         raise FileFormatError(f"{path}: unsupported drive format {fmt!r} (this graphpos reads {FORMAT_NAME}/{FORMAT_VERSION})")
     channels = {}
+    arrival_order = contents.library.startswith(LIVE_LIBRARY)
     for schema_name, channel in found:
         kind = _KIND_BY_SCHEMA[schema_name]
         if kind in channels:
             raise FileFormatError(f"{path}: two topics carry the '{kind}' channel (schema {schema_name})")
         where = f"{path}: topic {channel.topic}"
         try:
-            channels[kind] = _decode_channel(kind, contents.payloads.pop(channel.id, []), where)
+            channels[kind] = _decode_channel(kind, contents.payloads.pop(channel.id, []), where, arrival_order)
         except DriveError as exc:
             raise exc.with_source(str(path)) from None
     values = _metadata_values(meta, DRIVE_METADATA_RULES, f"{path}: metadata")
@@ -630,9 +845,12 @@ def _drive_from(contents: McapContents, path: Path) -> Drive:
     except DriveError as exc:  # a value out of its bounds (graphpos.drive): the file's metadata is at fault
         row = f", row {exc.row}" if exc.row is not None else ""
         raise FileFormatError(f"{path}: metadata '{exc.channel}'{row}: {exc.reason}") from None
+    params = values.get("params", {})
+    if contents.unclosed:
+        params = {**params, "unclosed_recording": True}
     try:
         return Drive(name=meta.get("name", path.stem), channels=channels, tags=tags, rsus=rsus, windows=windows,
-                     origin=origin, params=values.get("params", {}))
+                     origin=origin, params=params)
     except DriveError as exc:
         raise exc.with_source(str(path)) from None
 
@@ -640,6 +858,11 @@ def _drive_from(contents: McapContents, path: Path) -> Drive:
 def read_drive(path: str | os.PathLike) -> Drive:
     """Read the drive of an MCAP file written by :func:`write_drive` or any
     tool that writes the same schemas.
+
+    The drive of a recording ``graphpos live`` did not close (stopped,
+    killed) holds the rows up to its last complete chunk, and its params
+    ``"unclosed_recording": True``
+    (:func:`graphpos.io.mcap_container.read_mcap_contents`).
 
     Raises
     ------
