@@ -39,6 +39,16 @@ class OutputRow:
     yaw_rad: float | None = None
     cov_en_m2: np.ndarray | None = None
 
+    def to_dict(self) -> dict[str, Any]:
+        """The row as JSON values: None for a quantity not estimated (or NaN), ``cov_en_m2`` row-major [ee, en, ne, nn]."""
+
+        def number(x: float | None) -> float | None:
+            return None if x is None or x != x else float(x)
+
+        cov = None if self.cov_en_m2 is None else [number(v) for v in np.asarray(self.cov_en_m2).reshape(-1)]
+        return {"t_s": float(self.t_s), "east_m": float(self.east_m), "north_m": float(self.north_m), "v_east_mps": number(self.v_east_mps),
+                "v_north_mps": number(self.v_north_mps), "yaw_rad": number(self.yaw_rad), "cov_en_m2": cov}
+
 
 @dataclass(frozen=True, eq=False)
 class Estimate:
@@ -130,6 +140,16 @@ class Estimate:
             cov_en_m2=cov,
             **kwargs,
         )
+
+    def rows(self) -> list[OutputRow]:
+        """The output rows (:meth:`from_rows` inverted; None where the estimate lacks a quantity)."""
+        optional = [getattr(self, f) for f in ("v_east_mps", "v_north_mps", "yaw_rad")]
+        return [
+            OutputRow(float(self.t_s[i]), float(self.east_m[i]), float(self.north_m[i]),
+                      *(None if col is None else float(col[i]) for col in optional),
+                      None if self.cov_en_m2 is None else self.cov_en_m2[i])
+            for i in range(len(self))
+        ]
 
     def with_wall_time(self, wall_time_s: float) -> "Estimate":
         """The same estimate, stamped with the processing time of its run."""

@@ -105,16 +105,28 @@ class SensorProfile:
     def correct(self, drive: Drive) -> Drive:
         """The drive with its yaw rates, wheel speeds and reported ranges corrected."""
         channels = dict(drive.channels)
-        if "imu" in channels and (self.gyro_bias_radps != 0.0 or self.yaw_rate_scale != 1.0):
-            imu = channels["imu"]
-            channels["imu"] = imu.replace(yaw_rate_radps=(imu.yaw_rate_radps - self.gyro_bias_radps) / self.yaw_rate_scale)
-        if "wheel" in channels and self.wheel_scale != 1.0:
-            channels["wheel"] = channels["wheel"].replace(speed_mps=channels["wheel"].speed_mps / self.wheel_scale)
-        if "rfid" in channels and (self.range_scale != 1.0 or self.range_offset_m != 0.0):
-            rfid = channels["rfid"]
-            corrected = np.maximum((rfid.range_m - self.range_offset_m) / self.range_scale, 0.0)
-            channels["rfid"] = rfid.replace(range_m=np.where(np.isfinite(rfid.range_m), corrected, np.nan))
+        for name, ch in drive.channels.items():
+            fixed = self._corrections(name, ch.columns)
+            if fixed:
+                channels[name] = ch.replace(**fixed)
         return drive.replace(channels=channels)
+
+    def corrected_values(self, channel: str, values: dict[str, float]) -> dict[str, float]:
+        """One measurement's values (a row of ``channel``, as live mode receives it) corrected as :meth:`correct` corrects a drive."""
+        fixed = self._corrections(channel, {k: np.float64(v) for k, v in values.items()})
+        return {**values, **{k: float(v) for k, v in fixed.items()}} if fixed else values
+
+    def _corrections(self, channel: str, columns: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        """The corrected columns of one channel (arrays, or numpy scalars for one row); empty when nothing changes."""
+        if channel == "imu" and (self.gyro_bias_radps != 0.0 or self.yaw_rate_scale != 1.0):
+            return {"yaw_rate_radps": (columns["yaw_rate_radps"] - self.gyro_bias_radps) / self.yaw_rate_scale}
+        if channel == "wheel" and self.wheel_scale != 1.0:
+            return {"speed_mps": columns["speed_mps"] / self.wheel_scale}
+        if channel == "rfid" and (self.range_scale != 1.0 or self.range_offset_m != 0.0):
+            range_m = columns["range_m"]
+            corrected = np.maximum((range_m - self.range_offset_m) / self.range_scale, 0.0)
+            return {"range_m": np.where(np.isfinite(range_m), corrected, np.nan)}
+        return {}
 
     def tuned(self, config: Any) -> Any:
         """``config`` with the profile's noise levels in the fields it has (see the module docstring)."""

@@ -33,6 +33,7 @@ _COMMAND_MODULES = (
     "graphpos.cli.calibrate",
     "graphpos.cli.evaluation",
     "graphpos.cli.faults",
+    "graphpos.cli.live",
 )
 
 
