@@ -28,6 +28,10 @@ is not imported. Keys:
 
 - ``topic = "/imu/data"`` (rosbag) or ``file = "imu.csv"`` (csv, relative to
   the folder given on the command line);
+- ``type = "sensor_msgs/msg/Imu"`` (rosbag, optional): the topic's message
+  type, ROS 2 ``pkg/msg/Type`` or ROS 1 ``pkg/Type``. The importer checks it
+  against the bag; live rosbridge input (:mod:`graphpos.live.rosbridge`),
+  which has no bag to read it from, takes it instead of an ``advertise``;
 - ``fields = { input = "path", ... }``: where each input is (see
   :data:`INPUTS`): a message field path (``angular_velocity.z``,
   ``header.frame_id``, ``ranges[0].range``; ``ranges[*].range`` reads one
@@ -85,6 +89,7 @@ import csv
 import io
 import math
 import os
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -166,6 +171,10 @@ INPUTS: dict[str, dict[str, Input]] = {
 #: Channels with an arrival time.
 _ARRIVING = ("rfid", "rsu")
 
+_NAME = r"[A-Za-z][A-Za-z0-9_]*"
+#: A ROS message type: ``pkg/msg/Type`` (ROS 2) or ``pkg/Type`` (ROS 1).
+_MSGTYPE = re.compile(rf"({_NAME})/(?:msg/)?({_NAME})")
+
 
 @dataclass(frozen=True)
 class _Need:
@@ -194,7 +203,8 @@ _DIRECT = {"yaw_rate": "yaw_rate_radps", "accel_x": "accel_x_mps2", "accel_y": "
            "arrival": "arrival_s"}
 
 #: Section keys: common ones by source, and the channels a channel-specific key belongs to.
-_SOURCE_KEYS = {"rosbag": ("topic", "fields", "units", "time"), "csv": ("file", "fields", "units", "time", "delimiter")}
+_SOURCE_KEYS = {"rosbag": ("topic", "type", "fields", "units", "time"),
+                "csv": ("file", "fields", "units", "time", "delimiter")}
 _CHANNEL_KEYS = {"convention": ("compass", "truth"), "ids": ("rfid", "rsu"), "min_status": ("gnss",)}
 _CSV_CHANNEL_KEYS = {"arrival": _ARRIVING}
 _DRIVE_KEYS = ("origin", "tags", "rsus")
@@ -217,6 +227,8 @@ class ChannelMapping:
         The section, as an error names it (``mapping.toml [imu]``).
     source : str
         The topic (rosbag) or file name (csv).
+    msgtype : str or None
+        The topic's message type as ``pkg/msg/Type`` (rosbag ``type``); None: not given.
     fields : dict of str to str or float
         Input -> field path or column, or a constant (as the mapping gives them).
     units : dict of str to str
@@ -239,6 +251,7 @@ class ChannelMapping:
     where: str
     source: str
     fields: dict[str, str | float]
+    msgtype: str | None = None
     units: dict[str, str] = field(default_factory=dict)
     time: str | None = None
     arrival: str | None = None
@@ -321,6 +334,21 @@ def _whole(value: Any, where: str, lo: int, hi: int) -> int:
     return value
 
 
+def ros_msgtype(value: Any, where: str) -> str:
+    """A ROS message type, ROS 2 ``pkg/msg/Type`` or ROS 1 ``pkg/Type``, spelt ``pkg/msg/Type``.
+
+    Raises
+    ------
+    ConfigError
+        ``value`` is not such a name (naming ``where``).
+    """
+    match = _MSGTYPE.fullmatch(value) if isinstance(value, str) else None
+    if match is None:
+        raise ConfigError(f"{where}: expected a message type such as sensor_msgs/msg/Imu (ROS 2) or sensor_msgs/Imu "
+                          f"(ROS 1), got {value!r}")
+    return f"{match[1]}/msg/{match[2]}"
+
+
 def _origin(value: Any, where: str) -> GeoOrigin:
     table = _table(value, where)
     unknown = set(table) - {"lat_deg", "lon_deg", "alt_m"}
@@ -376,7 +404,8 @@ def _channel_section(channel: str, section: dict[str, Any], source_kind: str, wh
         raise ConfigError(f"{where} delimiter: expected one character (not a quote or a line break), got {delimiter!r}")
     return ChannelMapping(
         channel=channel, where=where, source=_text(section[source_key], f"{where} {source_key}"), fields=fields,
-        units=units, time=_text(section["time"], f"{where} time") if "time" in section else None,
+        msgtype=ros_msgtype(section["type"], f"{where} type") if "type" in section else None, units=units,
+        time=_text(section["time"], f"{where} time") if "time" in section else None,
         arrival=_text(section["arrival"], f"{where} arrival") if "arrival" in section else None,
         convention=convention, ids=ids, min_status=_whole(section.get("min_status", 0), f"{where} min_status", -1, 2),
         delimiter=delimiter)
@@ -682,8 +711,15 @@ def _arrays(raw: RawChannel, rows: np.ndarray, name: str, width: int) -> np.ndar
     return out
 
 
-def _input(raw: RawChannel, rows: np.ndarray, name: str) -> np.ndarray:
-    """Input ``name`` of the given rows in the drive's unit (a quaternion as its yaw, a covariance as sigma)."""
+def input_values(raw: RawChannel, rows: np.ndarray, name: str) -> np.ndarray:
+    """Input ``name`` of the given rows in the drive's unit (an id as its number, a quaternion as its yaw, a
+    covariance as sigma).
+
+    Raises
+    ------
+    FileFormatError
+        A value that is not a number, not finite, not a whole id, not in ``ids`` (:meth:`RawChannel.error`).
+    """
     spec = channel_inputs(raw.mapping.channel)[name]
     value = raw.fields[name]
     if not isinstance(value, str):
@@ -755,12 +791,12 @@ def _build_channel(raw: RawChannel, origin: GeoOrigin | None) -> tuple[Channel, 
     rows = np.arange(len(raw))
     notes = []
     if "status" in raw.fields:
-        keep = _input(raw, rows, "status") >= cm.min_status
+        keep = input_values(raw, rows, "status") >= cm.min_status
         if not keep.all():
             notes.append(f"{raw.source}: {int(np.count_nonzero(~keep))} of {rows.size} fixes have a status below "
                          f"min_status {cm.min_status}; dropped")
         rows = rows[keep]
-    t_s = _input(raw, rows, "time")
+    t_s = input_values(raw, rows, "time")
     order = np.argsort(t_s, kind="stable")
     moved = int(np.count_nonzero(order != np.arange(order.size)))
     if moved:
@@ -772,7 +808,7 @@ def _build_channel(raw: RawChannel, origin: GeoOrigin | None) -> tuple[Channel, 
         if name not in raw.fields:
             return None
         if name not in read:
-            read[name] = _input(raw, rows, name)
+            read[name] = input_values(raw, rows, name)
         return read[name]
 
     try:

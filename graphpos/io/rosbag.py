@@ -14,12 +14,16 @@ time). The record time, when the recorder received the message, is the
 stamp is refused: stamps from another clock want ``time = "record"``).
 
 Before any message is read, every mapped topic must be in the bag with one
-message type, every field path must lead to a field of that type of the
-right kind (a number; a number or text for ids; a ``Quaternion`` for
-``orientation``; an array of 9 for ``covariance``; a ``Time`` or a number
-for ``time``), and a type without default fields (:data:`DEFAULT_FIELDS`)
-must have its fields named. Each failure is one line naming the mapping
-section, the topic and the field.
+message type (the mapping's ``type`` where it gives one), every field path
+must lead to a field of that type of the right kind (a number; a number or
+text for ids; a ``Quaternion`` for ``orientation``; an array of 9 for
+``covariance``; a ``Time`` or a number for ``time``), and a type without
+default fields (:data:`DEFAULT_FIELDS`) must have its fields named. Each
+failure is one line naming the mapping section, the topic and the field.
+
+Live rosbridge input (:mod:`graphpos.live.rosbridge`) reads the same
+mappings with the same steps (:func:`topic_fields`, :func:`field_paths`,
+:func:`get_field`, :func:`stamp_s`) from JSON messages.
 """
 
 from __future__ import annotations
@@ -74,6 +78,11 @@ _READ_ERRORS = (AnyReaderError, Ros1ReaderError, Ros2ReaderError, OSError)
 Step = tuple[str, "int | str | None"]
 
 
+def stamp_s(sec: int, nanosec: int) -> float:
+    """Seconds of a ``builtin_interfaces/msg/Time`` (ROS 1 ``time``) given as its seconds and nanoseconds."""
+    return sec + nanosec / 1e9
+
+
 def _parse_path(path: str, where: str) -> list[Step]:
     """``a.b[2].c`` -> [("a", None), ("b", 2), ("c", None)]; ``[*]`` at most once."""
     steps = []
@@ -120,7 +129,7 @@ def _converter(name: str, kind: str, node: tuple, where: str) -> Callable[[Any],
     """How a field's value becomes an input's raw value, after checking that the field suits the input."""
     base = node[1][0] if node[0] == Nodetype.BASE else None
     if name == "time" and node == (Nodetype.NAME, _TIME_TYPE):
-        return lambda stamp: stamp.sec + stamp.nanosec / 1e9
+        return lambda stamp: stamp_s(stamp.sec, stamp.nanosec)
     if kind == "quaternion" and node == (Nodetype.NAME, _QUATERNION_TYPE):
         return lambda q: (q.x, q.y, q.z, q.w)
     if kind == "covariance" and node[0] == Nodetype.ARRAY and node[1][1] == 9 and node[1][0][0] == Nodetype.BASE:
@@ -132,14 +141,34 @@ def _converter(name: str, kind: str, node: tuple, where: str) -> Callable[[Any],
     raise ConfigError(f"{where}: the field is {_describe(node)}; {name} needs {wanted}")
 
 
-def _get(value: Any, steps: list[Step], convert: Callable[[Any], Any]) -> Any:
-    """The converted value at a field path (a list of them, one per element, past a ``[*]``)."""
+def get_field(value: Any, steps: list[Step], convert: Callable[[Any], Any], field: Callable[[Any, str], Any] = getattr,
+              array: Callable[[Any], Any] = lambda value: value) -> Any:
+    """The converted value at a field path (a list of them, one per element, past a ``[*]``).
+
+    Parameters
+    ----------
+    value : object
+        The message.
+    steps : list of Step
+        The parsed path (:func:`field_paths`).
+    convert : callable
+        The value at the end of the path -> the input's raw value.
+    field : callable
+        (message, name) -> its field ``name``: ``getattr`` for a deserialized message, a lookup for JSON.
+    array : callable
+        A field indexed by the path -> the sequence to index (a check for JSON).
+
+    Raises
+    ------
+    IndexError
+        An array shorter than the path's index (and whatever ``field``, ``array`` and ``convert`` raise).
+    """
     for i, (name, index) in enumerate(steps):
-        value = getattr(value, name)
+        value = field(value, name)
         if index == "*":
-            return [_get(element, steps[i + 1:], convert) for element in value]
+            return [get_field(element, steps[i + 1:], convert, field, array) for element in array(value)]
         if index is not None:
-            value = value[index]
+            value = array(value)[index]
     return convert(value)
 
 
@@ -160,7 +189,7 @@ class _Plan:
         got = {}
         for name, (steps, convert) in self.paths.items():
             try:
-                got[name] = _get(msg, steps, convert)
+                got[name] = get_field(msg, steps, convert)
             except IndexError:
                 raise FileFormatError(f"{self.source}, message {index}: field '{self.fields[name]}' ({name}) "
                                       "has fewer elements than the path asks") from None
@@ -182,15 +211,35 @@ class _Plan:
         return RawChannel(self.cm, self.source, self.fields, values, self.row_name, "field")
 
 
-def _plan(cm: ChannelMapping, reader: AnyReader, bag: Path, origin: Any) -> _Plan:
-    """Check a channel's topic, type and field paths against the bag; the plan to read it."""
-    types = sorted({c.msgtype for c in reader.connections if c.topic == cm.source})
-    if not types:
-        topics = sorted({c.topic for c in reader.connections})
-        raise ConfigError(f"{cm.where}: topic '{cm.source}' is not in {bag} (its topics: {', '.join(topics) or 'none'})")
-    if len(types) > 1:
-        raise ConfigError(f"{cm.where}: topic '{cm.source}' carries several message types ({', '.join(types)})")
-    msgtype = types[0]
+def has_header(msgtype: str, typestore: Any) -> bool:
+    """Whether messages of ``msgtype`` have a ``header`` (True for a type ``typestore`` does not define)."""
+    return msgtype not in typestore.fielddefs or "header" in dict(typestore.fielddefs[msgtype][1])
+
+
+def topic_fields(cm: ChannelMapping, msgtype: str, header: bool, origin: Any) -> dict[str, str | float]:
+    """The inputs a channel reads from its topic's messages, ``time`` (and ``arrival``) included.
+
+    Parameters
+    ----------
+    cm : ChannelMapping
+    msgtype : str
+        The topic's message type (``pkg/msg/Type``); its :data:`DEFAULT_FIELDS` under the mapping's fields.
+    header : bool
+        The messages have a header (:func:`has_header`): the default time is ``header.stamp``, else the record time.
+    origin : GeoOrigin or None
+        The mapping's origin.
+
+    Returns
+    -------
+    dict of str to str or float
+        Input -> field path, a constant, or :data:`RECORD` (the record time: ``arrival`` of rfid and rsu).
+
+    Raises
+    ------
+    ConfigError
+        The inputs do not make sense together (:func:`~graphpos.io.mapping.check_inputs`), or the type has
+        no default fields and the mapping does not name them.
+    """
     defaults = DEFAULT_FIELDS.get((cm.channel, msgtype))
     fields = cm.read_fields(defaults)
     try:
@@ -202,17 +251,49 @@ def _plan(cm: ChannelMapping, reader: AnyReader, bag: Path, origin: Any) -> _Pla
         raise ConfigError(f"{cm.where}: topic '{cm.source}' carries {msgtype}, which [{cm.channel}] does not read "
                           f"by default ({'it reads ' + ', '.join(known) if known else 'it has no default type'}); "
                           "name its fields in fields = { ... }") from None
-    typestore = reader.typestore
-    has_header = "header" in dict(typestore.fielddefs[msgtype][1])
-    fields["time"] = cm.time or ("header.stamp" if has_header else RECORD)
+    fields["time"] = cm.time or ("header.stamp" if header else RECORD)
     if cm.channel in ("rfid", "rsu"):
         fields["arrival"] = RECORD
+    return fields
+
+
+def field_paths(cm: ChannelMapping, fields: dict[str, str | float], msgtype: str,
+                typestore: Any | None) -> tuple[dict[str, tuple[list[Step], Callable[[Any], Any] | None]], set[str]]:
+    """The parsed field paths of a channel's inputs, checked against the message definition.
+
+    Parameters
+    ----------
+    cm : ChannelMapping
+    fields : dict
+        The inputs read (:func:`topic_fields`).
+    msgtype : str
+        The topic's message type.
+    typestore : rosbags typestore or None
+        Where ``msgtype`` is defined; None when it is not known (the paths are then only parsed).
+
+    Returns
+    -------
+    paths : dict of str to (list of Step, callable or None)
+        Input -> its path and the converter of a deserialized message's value at it (None without a
+        typestore), for every input read from a field.
+    starred : set of str
+        The inputs whose path has a ``[*]`` (one row per element).
+
+    Raises
+    ------
+    ConfigError
+        A path that is not one, that leads to no field of ``msgtype`` or to a field of the wrong kind, a unit
+        for a ``Time``, ``[*]`` over different arrays.
+    """
     paths = {}
     for name, path in fields.items():
         if not isinstance(path, str) or path == RECORD:
             continue
         where = f"{cm.where} {'time' if name == 'time' else 'fields.' + name} = '{path}' (topic '{cm.source}', {msgtype})"
         steps = _parse_path(path, where)
+        if typestore is None:
+            paths[name] = (steps, None)
+            continue
         node = _leaf(typestore, msgtype, steps, where)
         kind = "number" if name == "time" else INPUTS[cm.channel][name].kind
         paths[name] = (steps, _converter(name, kind, node, where))
@@ -224,6 +305,22 @@ def _plan(cm: ChannelMapping, reader: AnyReader, bag: Path, origin: Any) -> _Pla
               for name, (steps, _) in paths.items() if name in starred}
     if len(arrays) > 1:
         raise ConfigError(f"{cm.where}: the fields with [*] walk different arrays; one row per element needs one array")
+    return paths, starred
+
+
+def _plan(cm: ChannelMapping, reader: AnyReader, bag: Path, origin: Any) -> _Plan:
+    """Check a channel's topic, type and field paths against the bag; the plan to read it."""
+    types = sorted({c.msgtype for c in reader.connections if c.topic == cm.source})
+    if not types:
+        topics = sorted({c.topic for c in reader.connections})
+        raise ConfigError(f"{cm.where}: topic '{cm.source}' is not in {bag} (its topics: {', '.join(topics) or 'none'})")
+    if len(types) > 1:
+        raise ConfigError(f"{cm.where}: topic '{cm.source}' carries several message types ({', '.join(types)})")
+    msgtype = types[0]
+    if cm.msgtype not in (None, msgtype):
+        raise ConfigError(f"{cm.where} type: topic '{cm.source}' carries {msgtype} in {bag}, not {cm.msgtype}")
+    fields = topic_fields(cm, msgtype, has_header(msgtype, reader.typestore), origin)
+    paths, starred = field_paths(cm, fields, msgtype, reader.typestore)
     return _Plan(cm, f"{bag}: topic '{cm.source}'", fields, paths, starred)
 
 
