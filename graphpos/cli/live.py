@@ -10,6 +10,10 @@ reads after any stop, ``kill -9`` included). It runs until the
 end-of-drive message, SIGINT (Ctrl-C) or SIGTERM, then finishes the
 estimators, closes the recording and prints the counts.
 
+With ``--mapping``, messages are rosbridge operations read through that
+import mapping (:mod:`graphpos.live.rosbridge`) and ``{"op": "graphpos_end"}``
+ends the drive.
+
 The *site* is a drive of the same vehicle and place (a recording imported
 with ``graphpos import``, or a simulated drive): live takes its tag and
 RSU maps, origin, and the sensors the vehicle has; never its measurements
@@ -148,6 +152,10 @@ def _live(args: argparse.Namespace) -> int:
         from graphpos.live.rosbridge import RosbridgeTranslator
 
         translator = RosbridgeTranslator(args.mapping)
+        for what, theirs, ours in (("tag", translator.tags, site.tags), ("RSU", translator.rsus, site.rsus)):
+            if len(theirs) and theirs != ours:
+                raise ConfigError(f"the {what} map of {args.mapping} is not the one of the site {args.site}; the readings "
+                                  f"would be placed against the wrong map")
     feeds, settings = _estimators(args, site)
 
     def log(line: str) -> None:
@@ -157,7 +165,7 @@ def _live(args: argparse.Namespace) -> int:
     if foxglove_at is not None:
         from graphpos.live.foxglove_out import FoxgloveOutput
 
-        outputs.append(FoxgloveOutput(site, *foxglove_at))
+        outputs.append(FoxgloveOutput(site, [f.name for f in feeds], *foxglove_at))
     if udp_out is not None:
         from graphpos.live.udp_out import UdpOutput
 

@@ -36,7 +36,7 @@ MAP_EVERY_S = 5.0
 
 
 class FoxgloveOutput:
-    """A Foxglove WebSocket server publishing each estimate row.
+    """A Foxglove WebSocket server publishing each estimate row of the estimators ``names``.
 
     Raises
     ------
@@ -44,7 +44,7 @@ class FoxgloveOutput:
         The port cannot be bound.
     """
 
-    def __init__(self, site: Drive, host: str = "127.0.0.1", port: int = 8765):
+    def __init__(self, site: Drive, names: list[str], host: str = "127.0.0.1", port: int = 8765):
         import foxglove
         from foxglove.channels import LocationFixChannel, PoseInFrameChannel
 
@@ -67,6 +67,8 @@ class FoxgloveOutput:
                                                             data=json.dumps(GEOJSON_SCHEMA).encode()))
         self._map_payload = map_geojson_payload(site, site.origin)
         self._map_sent = -math.inf
+        for name in names:  # every channel before any viewer connects: one advertisement, no subscription racing a new channel
+            self._channels_of(name)
 
     def _channels_of(self, name: str) -> tuple:
         with self._lock:

@@ -29,10 +29,13 @@ read as the paths say, and its messages are taken to have a header.
 Times: the measurement time is ``header.stamp`` (``{"sec", "nanosec"}``,
 ROS 2, or ``{"secs", "nsecs"}``, ROS 1), or the field the mapping's
 ``time`` names (a stamp or a number in ``units.time``); ``time = "record"``
-(the default without a header) takes the receipt time. As the importer
-takes a bag's record time, the receipt time is the ``arrival_s`` of rfid
-and rsu readings, and, as the importer does, a reading received before its
-stamp is refused: stamps from another clock want ``time = "record"``.
+(the default without a header) takes the receipt time. A reading's
+``arrival_s`` is its own time: the receipt time is on this computer's
+clock, the stamps on the vehicle's, and mixing them would make every
+reading look early or late by the clocks' offset; live mode instead takes
+each reading to arrive when it is received relative to the others
+(:mod:`graphpos.live.session`), which a bag's record time gives the
+importer.
 GNSS fixes below ``min_status`` give no measurement. A mapping's truth
 section is not read: truth is for scoring only, and live takes none (a
 publish on its topic is an unmapped topic).
@@ -302,7 +305,10 @@ class RosbridgeTranslator:
         if rows == 0:
             return []
         values.update({name: value if name in reading.starred else [value] * rows for name, value in got.items()})
-        values.update({name: [receipt_s] * rows for name in ("time", "arrival") if reading.fields.get(name) == RECORD})
+        if reading.fields.get("time") == RECORD:
+            values["time"] = [receipt_s] * rows
+        if reading.fields.get("arrival") == RECORD:
+            values["arrival"] = list(values["time"])  # the reading's own time: live mode orders the arrivals (module docstring)
         for name, word, known in (("tag_id", "tag", self.tags.tag_id), ("rsu_id", "RSU", self.rsus.rsu_id)):
             if name in reading.fields:
                 try:
@@ -328,8 +334,7 @@ class RosbridgeTranslator:
         message : dict
             One rosbridge protocol message, parsed from JSON.
         receipt_s : float
-            When it was received (the clock of the measurement times): the arrival time of rfid and rsu
-            readings, the measurement time under ``time = "record"``.
+            When it was received: the measurement time under ``time = "record"``.
 
         Returns
         -------

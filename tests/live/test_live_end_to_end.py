@@ -11,7 +11,11 @@
 
 from __future__ import annotations
 
+import json
+import math
 import signal
+import socket
+import threading
 import time
 
 import numpy as np
@@ -19,10 +23,11 @@ import pytest
 from live_helpers import FoxgloveClient, LiveProcess, replay
 
 from graphpos.io import read_drive, read_estimates, write_drive
+from graphpos.io.mcap_container import read_mcap_contents
 from graphpos.registry import make_estimator
 from graphpos.sim import simulate
 
-ESTIMATORS = ("graph-isam2", "fusion-ekf", "rfid-ekf")
+ESTIMATORS = ("graph-isam2", "graph-fixed-lag", "fusion-ekf", "rfid-ekf")
 
 
 @pytest.fixture(scope="module")
@@ -33,14 +38,31 @@ def drive_path(tmp_path_factory):
     return path
 
 
+def _read_datagrams(sock, into: list) -> None:
+    while True:
+        try:
+            into.append(json.loads(sock.recv(65536)))
+        except TimeoutError:
+            continue
+        except OSError:
+            return
+
+
 def _offline(drive_path, name):
     return make_estimator(name).run(read_drive(drive_path).without_truth())
 
 
 def test_replayed_drive_gives_the_offline_output_and_reaches_foxglove(drive_path, tmp_path):
     rec = tmp_path / "rec.mcap"
+    udp_out = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    udp_out.bind(("127.0.0.1", 0))
+    udp_out.settimeout(0.5)
     live = LiveProcess("--site", str(drive_path), *(a for n in ESTIMATORS for a in ("-e", n)), "--listen", "tcp://127.0.0.1:0",
-                       "--foxglove", "127.0.0.1:0", "-o", str(rec), cwd=tmp_path)
+                       "--foxglove", "127.0.0.1:0", "--udp-out", f"udp://127.0.0.1:{udp_out.getsockname()[1]}", "-o", str(rec),
+                       cwd=tmp_path)
+    datagrams = []
+    reader = threading.Thread(target=_read_datagrams, args=(udp_out, datagrams), daemon=True)
+    reader.start()
     try:
         client = FoxgloveClient(live.foxglove)
         replay(drive_path, live.listen, "--speed", "10", cwd=tmp_path)
@@ -49,6 +71,7 @@ def test_replayed_drive_gives_the_offline_output_and_reaches_foxglove(drive_path
         client.close()
     finally:
         live.kill()
+        udp_out.close()
     assert status == 0, "\n".join(live.stderr)
     assert final["ended"] and final["lost"] == 0 and final["malformed_total"] == 0
     recorded = {e.name: e for e in read_estimates(rec)}
@@ -70,6 +93,16 @@ def test_replayed_drive_gives_the_offline_output_and_reaches_foxglove(drive_path
             assert abs(row["east_m"] - offline.east_m[i]) <= 1e-9 and abs(row["north_m"] - offline.north_m[i]) <= 1e-9
         assert client.schemas[f"/estimates/{name}/fix"] == "foxglove.LocationFix"
         assert len(client.messages[f"/estimates/{name}/fix"]) >= 0.9 * len(offline)
+    # every estimate also went out as a UDP JSON datagram
+    for name in ESTIMATORS:
+        sent = [d for d in datagrams if d["estimator"] == name]
+        assert [d["t_s"] for d in sent] == recorded[name].t_s.tolist()
+        assert all(math.isfinite(d["lat_deg"]) and math.isfinite(d["lon_deg"]) for d in sent)
+    # the recording holds each measurement's receipt-to-publish latency, per estimator
+    contents = read_mcap_contents(rec)
+    latency = {c.topic: len(contents.payloads.get(cid, [])) for cid, c in contents.channels.items() if c.topic.endswith("/latency")}
+    assert latency == {f"/live/{n}/latency": final["estimators"][n]["processed"] for n in ESTIMATORS}
+    assert all(final["estimators"][n]["processed"] >= final["accepted"] * 0.03 for n in ESTIMATORS)
     # the recording is a drive: the accepted inputs, which run offline give the same estimate again
     again = make_estimator("graph-isam2").run(read_drive(rec))
     assert np.max(np.abs(again.position - recorded["graph-isam2"].position)) <= 1e-9
