@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import math
 import subprocess
 import sys
 import threading
 import time
 
-import numpy as np
 import pytest
 
 from graphpos.drive import Measurement
