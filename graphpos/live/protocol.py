@@ -43,6 +43,8 @@ END = "end"
 #: Largest message accepted (a UDP datagram holds at most 65507 bytes).
 MAX_MESSAGE_BYTES = 65536
 _NUMBER = (int, float)
+#: The integer (id) columns of each channel, written as JSON integers.
+_INTEGER_COLUMNS = {c: frozenset(spec.name for spec in CHANNEL_SPECS[c] if spec.integer) for c in LIVE_CHANNELS}
 
 
 @dataclass(frozen=True)
@@ -65,8 +67,7 @@ def encode(m: Measurement, seq: int | None = None) -> bytes:
     for name, value in m.values.items():
         if name == "arrival_s" and value == m.t_s:
             continue
-        spec_integer = name in ("tag_id", "rsu_id")
-        body[name] = None if value != value else (int(value) if spec_integer else float(value))
+        body[name] = None if value != value else (int(value) if name in _INTEGER_COLUMNS[m.channel] else float(value))
     return json.dumps(body, separators=(",", ":"), allow_nan=False).encode()
 
 

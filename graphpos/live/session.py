@@ -40,6 +40,7 @@ recording (``/live/<name>/latency``, one message per measurement).
 from __future__ import annotations
 
 import collections
+import json
 import math
 import queue
 import threading
@@ -348,8 +349,6 @@ class LiveSession:
         if self._translator is None:
             received: Received = self._decoder.decode(payload)
             return ([received.measurement] if received.measurement else []), received.seq, received.measurement is None
-        import json
-
         try:
             message = json.loads(payload)
         except (ValueError, RecursionError) as exc:
