@@ -31,6 +31,16 @@ profile and keep the others.
     scale error, a wheel-speed scale error, RFID ranges that read long, and
     gross positive range outliers. The drawn values are recorded in
     ``drive.params["realised"]``.
+``paper``
+    The error sources of the song papers' road tests (issue 17), which the
+    ideal drives lack and which make the published errors 2-6x ours: a
+    constant compass deviation and a damped (lagging) compass, a wheel scale
+    error of a few per cent, accelerometer and gyro turn-on biases, and an
+    RSS radio on the vehicle that is not the calibration's (a weaker reader
+    gain, extra fading, more missed reads and wild readings). Each value,
+    the figures it reproduces and its physical reason are in
+    :data:`PROFILES`; ``benchmarks/paper_profile.py`` measures the match.
+    liu2016's urban scenario keeps its own odometer (see ``_PROFILE_SKIPS``).
 """
 
 from __future__ import annotations
@@ -81,6 +91,10 @@ _COMMON: dict[str, Any] = {
         # Per-drive yaw-rate scale error s, uniform in +-this: the gyro reads
         # (1 + s) times the true yaw rate; 0 in the ideal profile.
         "yaw_rate_scale_error_max": 0.0,
+        # Per-drive constant accelerometer turn-on bias, per axis uniform in
+        # +-this (m/s^2), on top of the Gauss-Markov bias; 0 in the ideal
+        # profile (see PROFILES).
+        "accel_turn_on_bias_max_mps2": 0.0,
     },
     "wheel": {
         # song2016 §6: 100 Hz. Noise and scale error (ours).
@@ -91,6 +105,11 @@ _COMMON: dict[str, Any] = {
         # (the reading is truth * (1 + gaussian) * (1 + uniform)); 0 in the
         # ideal profile (see PROFILES).
         "scale_error_max": 0.0,
+        # With scale_error_min > 0 the per-drive term's size is uniform in
+        # [scale_error_min, scale_error_max] and its sign random (a wheel
+        # radius known to be off by a few per cent, not which way); 0 keeps
+        # it uniform in +-scale_error_max.
+        "scale_error_min": 0.0,
     },
     "compass": {
         # song2016 §6: 10 Hz. Noise (ours) and local disturbances fixed in
@@ -100,6 +119,15 @@ _COMMON: dict[str, Any] = {
         "disturbances_per_km": 10.0,
         "disturbance_sigma_deg": 5.0,
         "disturbance_width_m": 4.0,
+        # Per-drive constant bias (deviation of the installed compass, the
+        # car's own magnetic field): size uniform in [bias_min_deg,
+        # bias_max_deg], sign random; 0 in the ideal profile (see PROFILES).
+        "bias_min_deg": 0.0,
+        "bias_max_deg": 0.0,
+        # Time constant of a first-order lag on the heading (s; the damping
+        # of a vehicle compass, which reads late in turns); 0 in the ideal
+        # profile (see PROFILES).
+        "lag_s": 0.0,
     },
     "rfid": {
         # song2016 §6: 1 Hz; heard up to 9 m, reliable within 6 m (the range
@@ -124,6 +152,20 @@ _COMMON: dict[str, Any] = {
         "range_outlier_probability": 0.0,
         "range_outlier_min_m": 2.0,
         "range_outlier_max_m": 8.0,
+        # Road-test terms of the RSS radio beyond the calibration's RSS law
+        # (all 0 in the ideal profile, see PROFILES): a per-drive reader gain
+        # offset against the calibration set-up (dB, uniform in
+        # [reader_gain_min_db, reader_gain_max_db]; negative: the vehicle's
+        # reader hears weaker, so RSS ranges read long), per-tag mounting
+        # offsets (1-sigma tag_offset_db, on top of the environment's
+        # shadowing), extra per-reading fading (1-sigma extra_fading_db, in
+        # quadrature with the environment's) and whole scans lost
+        # (scan_dropout_probability per read epoch).
+        "reader_gain_min_db": 0.0,
+        "reader_gain_max_db": 0.0,
+        "tag_offset_db": 0.0,
+        "extra_fading_db": 0.0,
+        "scan_dropout_probability": 0.0,
     },
     "tags": {
         # song2016 §6.2: both walls every 6 m; §5.1: groups of four (two per
@@ -299,6 +341,69 @@ PROFILES: dict[str, dict[str, Any]] = {
             "range_outlier_max_m": 8.0,
         },
     },
+    # The papers' road tests (issue 17): the error sources the song papers'
+    # vehicle must have had for our estimators to land near the published
+    # RMS of song2016 Tables 3-4, song2016b Table I and song2014 Tables 4-6
+    # (benchmarks/paper_profile.py measures it). The papers give none of
+    # these numbers: every value is ours, chosen on seeds 0-6 and checked on
+    # seeds 10-14; each says which figures it moves and why it is physical.
+    # Per-drive terms are drawn from the seed (their own random streams).
+    "paper": {
+        "imu": {
+            # A MEMS accelerometer's turn-on bias (levelling, temperature):
+            # +-0.15 m/s^2 per axis. It is the CA model's mismatch that makes
+            # song2014's plain EKF worse than its STEKF/IMM (T5 EKF 3.62 vs
+            # STEKF 2.31); it barely moves DR, which the wheel corrects.
+            "accel_turn_on_bias_max_mps2": 0.15,
+            # A MEMS gyro's turn-on bias, +-0.3 deg/s (the compass bounds
+            # its effect on heading; kept for the filters that integrate it).
+            "gyro_turn_on_bias_max_dps": 0.3,
+        },
+        "wheel": {
+            # An odometer calibrated on a different tyre pressure / load:
+            # 3.5-5.5 % off, either way. With the compass terms it gives DR
+            # its 5 m RMS over the 150 m, 76 s test (song2016 T3 DR 6.04,
+            # T4 6.14-6.62, song2014 T5 4.04: the bands overlap in
+            # [4.6, 5.25]); it is also most of Fusion-EKF's and FUKF's extra
+            # error between tag groups.
+            "scale_error_min": 0.035,
+            "scale_error_max": 0.055,
+        },
+        "compass": {
+            # Compass deviation after installation in the car (its own
+            # steel and currents): a constant 1.5-2.5 deg, either sign. Over
+            # 150 m, 2 deg puts DR about 5 m off laterally at the end.
+            "bias_min_deg": 1.5,
+            "bias_max_deg": 2.5,
+            # A damped vehicle compass reads late: a 1 s first-order lag, a
+            # few degrees of heading error in the curve and lane changes
+            # (DR and the fused filters in song2016 T4's curve patterns).
+            "lag_s": 1.0,
+        },
+        "rfid": {
+            # The road-test RSS radio is not the calibration's (song2016
+            # §6.1 calibrated on a stand, averaging 5 min per point):
+            # the vehicle's reader hears 2-3 dB weaker (antenna behind the
+            # car body), so RSS ranges read ~30-50 % long - the main reason
+            # RFID-EKF's RMS is 4-5 m (song2016 T3-T4 4.00-5.63) rather than
+            # our ideal 2-3 m.
+            "reader_gain_min_db": -3.0,
+            "reader_gain_max_db": -2.0,
+            # A moving reader fades more than a static one: 1.5 dB extra
+            # per reading (vehicle motion, the car body).
+            "extra_fading_db": 1.5,
+            # Reads missed by the moving reader: 10 % of the tags in range
+            # each scan (ideal 5 %). Whole-scan dropouts and per-tag
+            # mounting offsets (scan_dropout_probability, tag_offset_db)
+            # were tried and left at 0: they raised FUKF (16 tags) and the
+            # song2014 fusion filters far beyond the papers' figures.
+            "read_failure_probability": 0.10,
+            # Wild readings (passing traffic, reflections): 5 % of them
+            # off by N(0, 15 dB) (ideal 2 % of N(0, 10 dB)).
+            "outlier_probability": 0.05,
+            "outlier_sigma_db": 15.0,
+        },
+    },
 }
 
 
@@ -314,6 +419,15 @@ def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
 
 #: Sections a scenario has no use for (no RFID tags on liu2016's route).
 _UNUSED = {"urban-rsu-gnss": ("rfid", "tags")}
+
+
+#: Sections of a profile a scenario does not take: (profile, scenario) ->
+#: sections. liu2016's vehicle is not song's: its claim of 2DRMS <= 2 m in a
+#: 400 m tunnel with an RSU every ~57 m needs a calibrated odometer (with the
+#: paper profile's 3-5 % wheel scale error its federated KF, which has no
+#: scale state, is 7 m off in the open and 33 m in the tunnel), so the paper
+#: profile leaves its wheel as it is; the other terms apply.
+_PROFILE_SKIPS: dict[tuple[str, str], tuple[str, ...]] = {("paper", "urban-rsu-gnss"): ("wheel",)}
 
 
 def _check_profile(profile: Any) -> str:
@@ -347,7 +461,10 @@ def default_params(scenario: str, profile: str = "ideal") -> dict[str, Any]:
     params = _merge(_COMMON, _SCENARIO_PARAMS[scenario])
     for section in _UNUSED.get(scenario, ()):
         del params[section]
-    params = _merge(params, _profile_values(params, PROFILES[profile]))
+    values = _profile_values(params, PROFILES[profile])
+    for section in _PROFILE_SKIPS.get((profile, scenario), ()):
+        values.pop(section, None)
+    params = _merge(params, values)
     params["profile"] = profile
     return params
 
@@ -449,6 +566,15 @@ _BOUNDS: dict[str, tuple[float, float]] = {
     "range_scale_min": (0.5, 2.0),
     "range_scale_max": (0.5, 2.0),
     "range_outlier_max_m": (0.0, 1000.0),
+    "accel_turn_on_bias_max_mps2": (0.0, 2.0),
+    "scale_error_min": (0.0, 0.9),
+    "bias_min_deg": (0.0, 30.0),
+    "bias_max_deg": (0.0, 30.0),
+    "reader_gain_min_db": (-30.0, 30.0),
+    "reader_gain_max_db": (-30.0, 30.0),
+    "tag_offset_db": (0.0, 30.0),
+    "extra_fading_db": (0.0, 30.0),
+    "lag_s": (0.0, 60.0),
 }
 
 #: Longest route accepted (the world's longest road tunnel is 24.5 km).
@@ -499,11 +625,15 @@ def check_params(params: dict[str, Any]) -> None:
     for name, zone in params.get("gnss", {}).get("zones", {}).items():
         if 0 < zone["tail_dof"] <= 2:
             raise ConfigError(f"parameter 'gnss.zones.{name}.tail_dof' must be 0 (Gaussian) or above 2 (finite variance)")
+    for section, lo, hi in (("wheel", "scale_error_min", "scale_error_max"), ("compass", "bias_min_deg", "bias_max_deg")):
+        if params[section][lo] > params[section][hi]:
+            raise ConfigError(f"parameter '{section}.{lo}' must not exceed {section}.{hi}")
     if "tags" in params and params["tags"]["group_spacing_m"] < params["tags"]["group_length_m"]:
         raise ConfigError("parameter 'tags.group_spacing_m' must be at least tags.group_length_m")
     if "rfid" in params:
         r = params["rfid"]
-        for lo, hi in (("range_scale_min", "range_scale_max"), ("range_outlier_min_m", "range_outlier_max_m")):
+        for lo, hi in (("range_scale_min", "range_scale_max"), ("range_outlier_min_m", "range_outlier_max_m"),
+                       ("reader_gain_min_db", "reader_gain_max_db")):
             if r[lo] > r[hi]:
                 raise ConfigError(f"parameter 'rfid.{lo}' must not exceed rfid.{hi}")
 

@@ -22,9 +22,12 @@ from graphpos.sim.trajectory import Trajectory
 #: components append a new number). ``profile`` holds the per-drive error
 #: terms of a sensor profile (:func:`profile_errors`), ``rfid_range`` the
 #: noise and outliers of reported RFID ranges, ``gnss_approach`` the DGPS fixes
-#: on a paper scenario's approach.
+#: on a paper scenario's approach, ``profile_terms`` the per-drive terms added
+#: for the ``paper`` profile (:func:`road_test_errors`), ``rfid_road`` the
+#: per-tag and per-reading road-test terms of the RSS radio
+#: (:func:`rfid_road_test`).
 _STREAMS = {"imu": 1, "wheel": 2, "compass": 3, "rfid": 4, "gnss": 5, "rsu": 6, "latency": 7, "faults": 8,
-            "profile": 9, "rfid_range": 10, "gnss_approach": 11}
+            "profile": 9, "rfid_range": 10, "gnss_approach": 11, "profile_terms": 12, "rfid_road": 13}
 
 
 def stream(seed: int, name: str) -> np.random.Generator:
@@ -72,7 +75,9 @@ def profile_errors(params: dict[str, Any], rng: np.random.Generator) -> dict[str
     dict
         ``gyro_turn_on_bias_dps`` (uniform in +-``imu.gyro_turn_on_bias_max_dps``),
         ``yaw_rate_scale_error`` (uniform in +-``imu.yaw_rate_scale_error_max``),
-        ``wheel_profile_scale_error`` (uniform in +-``wheel.scale_error_max``),
+        ``wheel_profile_scale_error`` (uniform in +-``wheel.scale_error_max``,
+        or, with ``wheel.scale_error_min`` > 0, of size uniform in
+        [``scale_error_min``, ``scale_error_max``] and the variate's sign),
         ``range_scale`` (uniform in [``rfid.range_scale_min``, ``rfid.range_scale_max``]).
     """
     u_bias, u_yaw, u_wheel, u_range = rng.uniform(-1.0, 1.0, 4)
@@ -80,7 +85,7 @@ def profile_errors(params: dict[str, Any], rng: np.random.Generator) -> dict[str
     out = {
         "gyro_turn_on_bias_dps": float(u_bias * imu_p["gyro_turn_on_bias_max_dps"]) + 0.0,
         "yaw_rate_scale_error": float(u_yaw * imu_p["yaw_rate_scale_error_max"]) + 0.0,
-        "wheel_profile_scale_error": float(u_wheel * wheel_p["scale_error_max"]) + 0.0,
+        "wheel_profile_scale_error": _banded(u_wheel, wheel_p.get("scale_error_min", 0.0), wheel_p["scale_error_max"]),
         "range_scale": 1.0,
     }
     if "rfid" in params:
@@ -89,22 +94,66 @@ def profile_errors(params: dict[str, Any], rng: np.random.Generator) -> dict[str
     return out
 
 
+def _banded(u: float, lo: float, hi: float) -> float:
+    """A unit variate u in [-1, 1] as a term of size in [lo, hi] and u's sign
+    (``u * hi`` exactly when lo is 0)."""
+    if lo == 0.0:
+        return float(u * hi) + 0.0
+    return float(np.sign(u) * (lo + abs(u) * (hi - lo))) + 0.0
+
+
+def road_test_errors(params: dict[str, Any], rng: np.random.Generator) -> dict[str, float]:
+    """The per-drive terms the ``paper`` profile adds, drawn once per drive.
+
+    Four unit variates, uniform in [-1, 1], are drawn in a fixed order from
+    the ``profile_terms`` stream whatever the bounds (so ``ideal`` and
+    ``realistic`` drives, whose terms are all 0, keep every sample).
+
+    Returns
+    -------
+    dict
+        ``compass_bias_deg`` (size uniform in [``compass.bias_min_deg``,
+        ``compass.bias_max_deg``], random sign), ``accel_turn_on_bias_x_mps2``
+        and ``accel_turn_on_bias_y_mps2`` (each uniform in
+        +-``imu.accel_turn_on_bias_max_mps2``), ``reader_gain_db`` (uniform
+        in [``rfid.reader_gain_min_db``, ``rfid.reader_gain_max_db``]; 0
+        without RFID).
+    """
+    u_compass, u_ax, u_ay, u_gain = rng.uniform(-1.0, 1.0, 4)
+    c, a = params["compass"], params["imu"]["accel_turn_on_bias_max_mps2"]
+    out = {
+        "compass_bias_deg": _banded(u_compass, c["bias_min_deg"], c["bias_max_deg"]),
+        "accel_turn_on_bias_x_mps2": float(u_ax * a) + 0.0,
+        "accel_turn_on_bias_y_mps2": float(u_ay * a) + 0.0,
+        "reader_gain_db": 0.0,
+    }
+    if "rfid" in params:
+        lo, hi = params["rfid"]["reader_gain_min_db"], params["rfid"]["reader_gain_max_db"]
+        out["reader_gain_db"] = float(lo + 0.5 * (u_gain + 1.0) * (hi - lo)) + 0.0
+    return out
+
+
 def imu(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random.Generator,
-        turn_on_bias_dps: float = 0.0, yaw_rate_scale_error: float = 0.0) -> dict[str, np.ndarray]:
+        turn_on_bias_dps: float = 0.0, yaw_rate_scale_error: float = 0.0,
+        accel_turn_on_bias_mps2: tuple[float, float] = (0.0, 0.0)) -> dict[str, np.ndarray]:
     """Two accelerometers (body x, y) and a yaw gyro: truth + bias + white noise.
 
     The gyro reads ``(1 + yaw_rate_scale_error) * truth + gauss_markov_bias +
     turn_on_bias + noise``; the last two arguments are the sensor profile's
     per-drive terms (:func:`profile_errors`; 0 leaves the samples those of
-    the ideal profile bit for bit).
+    the ideal profile bit for bit). Each accelerometer adds its constant
+    turn-on bias of ``accel_turn_on_bias_mps2`` (x, y; the ``paper``
+    profile's terms, :func:`road_test_errors`).
     """
     t = sample_times(duration_s, p["rate_hz"])
     st = traj.state(t)
     dt = 1.0 / p["rate_hz"]
     n = t.size
     cols = {"t_s": t}
-    for axis in ("x", "y"):
+    for axis, turn_on in zip(("x", "y"), accel_turn_on_bias_mps2):
         bias = gauss_markov(n, dt, p["accel_bias_sigma_mps2"], p["accel_bias_tau_s"], rng)
+        if turn_on != 0.0:
+            bias = bias + turn_on
         cols[f"accel_{axis}_mps2"] = st[f"accel_{axis}_mps2"] + bias + rng.standard_normal(n) * p["accel_sigma_mps2"]
     bias = gauss_markov(n, dt, np.deg2rad(p["gyro_bias_sigma_dps"]), p["gyro_bias_tau_s"], rng)
     rate = st["yaw_rate_radps"] if yaw_rate_scale_error == 0.0 else st["yaw_rate_radps"] * (1.0 + yaw_rate_scale_error)
@@ -133,9 +182,24 @@ def wheel(traj: Trajectory, duration_s: float, p: dict[str, Any], rng: np.random
     return {"t_s": t, "speed_mps": speed}, scale
 
 
-def compass(traj: Trajectory, route: Route, duration_s: float, p: dict[str, Any], rng: np.random.Generator) -> dict[str, np.ndarray]:
-    """Heading (yaw from east, wrapped to [-pi, pi)) with white noise and
-    local disturbances fixed along the road (Gaussian bumps, none in turnarounds)."""
+def lagged(yaw_rad: np.ndarray, dt_s: float, tau_s: float) -> np.ndarray:
+    """A heading seen through a first-order lag of time constant ``tau_s``
+    (the damping of a vehicle compass), started settled on the first sample.
+    The heading is unwrapped first, so the lag never crosses +-pi the long way."""
+    y = np.unwrap(yaw_rad)
+    a = 1.0 - np.exp(-dt_s / tau_s)
+    out, _ = lfilter([a], [1.0, a - 1.0], y, zi=[(1.0 - a) * y[0]])
+    return out
+
+
+def compass(traj: Trajectory, route: Route, duration_s: float, p: dict[str, Any], rng: np.random.Generator,
+            bias_deg: float = 0.0) -> dict[str, np.ndarray]:
+    """Heading (yaw from east, wrapped to [-pi, pi)) with white noise,
+    local disturbances fixed along the road (Gaussian bumps, none in
+    turnarounds) and a constant per-drive bias ``bias_deg`` (the ``paper``
+    profile's term, :func:`road_test_errors`; 0 leaves the samples as they were).
+    With ``lag_s`` > 0 the heading is the truth through a first-order lag
+    (:func:`lagged`; a damped compass reads late in turns)."""
     t = sample_times(duration_s, p["rate_hz"])
     st = traj.state(t)
     n_bumps = rng.poisson(p["disturbances_per_km"] * route.length_m / 1000.0)
@@ -146,7 +210,12 @@ def compass(traj: Trajectory, route: Route, duration_s: float, p: dict[str, Any]
     for c, a in zip(centres, amps):
         disturbance += a * np.exp(-0.5 * ((st["route_s"] - c) / width) ** 2)
     disturbance[st["turnaround"]] = 0.0
-    yaw = st["yaw_rad"] + disturbance + rng.standard_normal(t.size) * np.deg2rad(p["sigma_deg"])
+    true_yaw = st["yaw_rad"]
+    if p.get("lag_s", 0.0) > 0.0:
+        true_yaw = lagged(true_yaw, 1.0 / p["rate_hz"], p["lag_s"])
+    yaw = true_yaw + disturbance + rng.standard_normal(t.size) * np.deg2rad(p["sigma_deg"])
+    if bias_deg != 0.0:
+        yaw = yaw + np.deg2rad(bias_deg)
     return {"t_s": t, "yaw_rad": (yaw + np.pi) % (2 * np.pi) - np.pi}
 
 
@@ -181,6 +250,47 @@ def rfid(traj: Trajectory, tags: TagMap, env: RssEnvironment, duration_s: float,
     wild = rng.random(dist.size) < p["outlier_probability"]
     rss[wild] = np.clip(np.round(rss[wild] + env.units_per_db * rng.standard_normal(int(wild.sum())) * p["outlier_sigma_db"]), 0, 255)
     return {"t_s": t[read], "tag_id": tags.tag_id[tag_idx].astype(np.float64), "rss": rss, "true_range_m": dist}
+
+
+def rfid_road_test(cols: dict[str, np.ndarray], tags: TagMap, env: RssEnvironment, p: dict[str, Any],
+                   reader_gain_db: float, rng: np.random.Generator) -> tuple[dict[str, np.ndarray], int]:
+    """The road-test terms of an RSS radio, applied to :func:`rfid`'s rows.
+
+    The calibration (song2016 §6.1: a reader on a stand, tags averaged over
+    5 minutes) and the RSS law describe a set-up the moving vehicle does not
+    reproduce. On the road:
+
+    * the reader's gain differs from the calibration's by ``reader_gain_db``
+      (per drive: the antenna behind the car body, its height and cable);
+    * each tag carries a constant mounting offset, 1-sigma ``tag_offset_db``
+      (orientation to the reader, the wall behind it);
+    * each reading fades more, 1-sigma ``extra_fading_db`` (vehicle
+      motion, the car body and other traffic);
+    * whole scans are lost with ``scan_dropout_probability`` per read epoch
+      (the reader's link to the computer).
+
+    Draws come from the ``rfid_road`` stream in a fixed order whatever the
+    parameters; with every term 0 the rows are returned unchanged.
+
+    Returns
+    -------
+    cols, dropped : dict, int
+        The rows left, and how many read epochs were dropped.
+    """
+    offsets = rng.standard_normal(len(tags)) * p["tag_offset_db"]
+    epochs, inverse = np.unique(cols["t_s"], return_inverse=True)
+    lost = rng.random(epochs.size) < p["scan_dropout_probability"]
+    fading = rng.standard_normal(cols["t_s"].size) * p["extra_fading_db"]
+    if reader_gain_db == 0.0 and p["tag_offset_db"] == 0.0 and p["extra_fading_db"] == 0.0 and not lost.any():
+        return cols, 0
+    index = {int(t): i for i, t in enumerate(tags.tag_id)}
+    tag_idx = np.array([index[int(t)] for t in cols["tag_id"]], dtype=np.int64)
+    db = reader_gain_db + offsets[tag_idx] + fading
+    rss = np.clip(np.round(cols["rss"] + env.units_per_db * db), 0.0, 255.0)
+    keep = ~lost[inverse]
+    out = {k: v[keep] for k, v in cols.items()}
+    out["rss"] = rss[keep]
+    return out, int(lost.sum())
 
 
 def rfid_ranges(true_range_m: np.ndarray, p: dict[str, Any], range_scale: float,

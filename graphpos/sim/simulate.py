@@ -108,7 +108,11 @@ def simulate(
         ``yaw_rate_scale_error``, ``wheel_profile_scale_error``,
         ``wheel_scale_error`` (the total: the wheel reads ``1 +`` it times the
         truth), ``range_scale``, ``range_outliers`` (RFID ranges given an
-        outlier excess, counted before faults)).
+        outlier excess, counted before faults), and the ``paper`` profile's
+        ``compass_bias_deg``, ``accel_turn_on_bias_x_mps2``,
+        ``accel_turn_on_bias_y_mps2``, ``reader_gain_db`` and
+        ``rfid_scans_dropped``). ``"paper"`` adds the error sources of the
+        papers' road tests (see :data:`graphpos.sim.params.PROFILES`).
 
     Notes
     -----
@@ -152,10 +156,13 @@ def simulate(
     truth = {"t_s": t_truth, **{k: st[k] for k in (
         "east_m", "north_m", "v_east_mps", "v_north_mps", "yaw_rad", "yaw_rate_radps", "accel_x_mps2", "accel_y_mps2")}}
     errors = sensors.profile_errors(params, sensors.stream(seed, "profile"))
+    errors.update(sensors.road_test_errors(params, sensors.stream(seed, "profile_terms")))
     cols: dict[str, dict[str, np.ndarray]] = {
         "imu": sensors.imu(traj, duration_s, params["imu"], sensors.stream(seed, "imu"),
-                           turn_on_bias_dps=errors["gyro_turn_on_bias_dps"], yaw_rate_scale_error=errors["yaw_rate_scale_error"]),
-        "compass": sensors.compass(traj, route, duration_s, params["compass"], sensors.stream(seed, "compass")),
+                           turn_on_bias_dps=errors["gyro_turn_on_bias_dps"], yaw_rate_scale_error=errors["yaw_rate_scale_error"],
+                           accel_turn_on_bias_mps2=(errors["accel_turn_on_bias_x_mps2"], errors["accel_turn_on_bias_y_mps2"])),
+        "compass": sensors.compass(traj, route, duration_s, params["compass"], sensors.stream(seed, "compass"),
+                                   bias_deg=errors["compass_bias_deg"]),
     }
     cols["wheel"], wheel_scale = sensors.wheel(traj, duration_s, params["wheel"], sensors.stream(seed, "wheel"),
                                                profile_scale_error=errors["wheel_profile_scale_error"])
@@ -163,9 +170,11 @@ def simulate(
     env = ENVIRONMENTS[params["rss_environment"]]
 
     tags = place_tags(route, params["tags"]) if "tags" in params else no_tags()
-    range_outliers = 0
+    range_outliers = scans_dropped = 0
     if "rfid" in params and len(tags):
         cols["rfid"] = sensors.rfid(traj, tags, env, duration_s, params["rfid"], sensors.stream(seed, "rfid"))
+        cols["rfid"], scans_dropped = sensors.rfid_road_test(cols["rfid"], tags, env, params["rfid"], errors["reader_gain_db"],
+                                                             sensors.stream(seed, "rfid_road"))
         if params["rfid"]["reports_range"]:
             cols["rfid"]["range_m"], outlier = sensors.rfid_ranges(
                 cols["rfid"]["true_range_m"], params["rfid"], errors["range_scale"], sensors.stream(seed, "rfid_range"))
@@ -194,6 +203,7 @@ def simulate(
             "wheel_scale_error": wheel_scale,
             **errors,
             "range_outliers": range_outliers,
+            "rfid_scans_dropped": scans_dropped,
             "route_length_m": route.length_m,
             "pass_duration_s": traj.first_pass_time_s,
             "lap_duration_s": traj.lap_time_s,
