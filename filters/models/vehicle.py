@@ -177,3 +177,38 @@ def input_noise(G: np.ndarray, input_sigmas: np.ndarray) -> np.ndarray:
     """
     Gs = G * np.asarray(input_sigmas, dtype=np.float64)
     return Gs @ Gs.T
+
+
+def constant_velocity_motion(x: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Constant-velocity motion of ``[p_e, p_n, v_e, v_n]``: ``p += v T``, ``v`` unchanged.
+
+    The motion prior of the ranges-only factor graph (``graph-ranges``),
+    whose process noise is :func:`white_acceleration_noise`. Returns the
+    next state and ``F = d x_next / d x`` (4, 4).
+    """
+    F = _identity(4)
+    F[PE, VE] = F[PN, VN] = dt_s
+    return F @ np.asarray(x, dtype=np.float64), F
+
+
+def white_acceleration_noise(accel_psd_m2ps3: float, dt_s: float) -> np.ndarray:
+    """Process noise of :func:`constant_velocity_motion` driven by white acceleration.
+
+    Parameters
+    ----------
+    accel_psd_m2ps3 : float
+        Power spectral density ``q`` of the acceleration on each axis,
+        m^2/s^3 (a velocity random walk of ``sqrt(q)`` m/s per sqrt(s)).
+    dt_s : float
+        Step T.
+
+    Returns
+    -------
+    (4, 4) array
+        ``q [[T^3/3 I, T^2/2 I], [T^2/2 I, T I]]`` in ``[p_e, p_n, v_e, v_n]``
+        order (the discretised white-noise-acceleration model; GTSAM's
+        ``WnoaMotionFactorPoint2`` is the same prior as a factor).
+    """
+    t = float(dt_s)
+    block = accel_psd_m2ps3 * np.array([[t**3 / 3.0, t**2 / 2.0], [t**2 / 2.0, t]])
+    return np.kron(block, np.eye(2))

@@ -69,7 +69,12 @@ from graphpos.standstill import StandstillGyroBias
 
 #: A landmark key is reused for sightings at most this far apart, s.
 LANDMARK_LIFETIME_S = 3.0
-#: Factor on ignition's sigmas for the start prior of the released track.
+#: Factor on ignition's sigmas for the start prior of the released track (the whole held track: the
+#: readings ignition solved from are in the graph too). A fixed-lag release keeps only the last seconds
+#: of the track and its readings, so its prior takes ignition's sigmas: inflated, the wide heading
+#: prior was then nearly all the window's heading information, 5600 times weaker than one keyframe's
+#: gyro, and GTSAM's Cholesky declared the window indeterminate (it refuses a factor whose consecutive
+#: pivots differ by more than 2^12; MRCLAM robots 1 and 4).
 START_PRIOR_INFLATION = 3.0
 #: The graph starts from a looser heading than a filter (ignition's default
 #: 10 degrees): the start only sets the linearisation point and a wide prior,
@@ -96,6 +101,11 @@ class Increment:
     values: gtsam.Values = field(default_factory=gtsam.Values)
     timestamps: dict[int, float] = field(default_factory=dict)
     released: list[int] = field(default_factory=list)  # keyframes entering the smoother now
+    #: The mean wheel speed of each released keyframe's interval, taken when the increment is made:
+    #: the builder forgets old keyframes' speeds (:meth:`GraphBuilder._prune`) while one measurement
+    #: closes more keyframes, so a release's older keyframes may be gone from ``GraphBuilder.speeds``
+    #: before the increment reaches the smoother.
+    speeds: dict[int, float] = field(default_factory=dict)
     anchoring: bool = False  # first information of the trajectory: iterate more
     late: bool = False
 
@@ -594,6 +604,7 @@ class GraphBuilder:
             return self._release(inc, self._move_onto_start(self._start))
         self._attach(inc, ready, at_estimate=True)
         inc.released = [k]
+        inc.speeds[k] = self.speeds[k]
         self.started = True
         self._prune(k)
         return inc
@@ -790,6 +801,7 @@ class GraphBuilder:
             merged.timestamps.update({key: t for key, t in inc.timestamps.items() if key in allowed})
         for k in merged.released:
             self.model.insert_values(merged.values, k, self.states[k])
+            merged.speeds[k] = self.speeds[k]
         if extra:
             self.model.insert_bias(merged.values, first, self.states[first])
             merged.timestamps.update({key: self.keyframe_time(first) for key in extra})
@@ -799,8 +811,11 @@ class GraphBuilder:
         if start_keyframe is not None:
             at = min(max(start_keyframe, merged.released[0]), merged.released[-1])
             st = self._start
-            sigma_m = START_PRIOR_INFLATION * st.position_sigma_m
-            sigma_yaw = min(START_PRIOR_INFLATION * st.yaw_sigma_rad, math.pi)
+            # inflated when the held track's readings, ignition's, are in the graph too;
+            # a window drops those before it, and with them most of the heading information
+            inflation = START_PRIOR_INFLATION if len(window) == len(self._backlog) else 1.0
+            sigma_m = inflation * st.position_sigma_m
+            sigma_yaw = min(inflation * st.yaw_sigma_rad, math.pi)
             self._add(merged, self.model.prior_factors(at, self.states[at], sigma_m, sigma_yaw))
         self._backlog = []
         self._backlog_landmarks = {}

@@ -220,3 +220,55 @@ class GraphConfig:
         lo, hi = self.range_scale_bounds
         if not (0 < lo < 1 < hi):
             raise ConfigError(f"range_scale_bounds must bracket 1, got {self.range_scale_bounds}")
+
+
+@dataclass
+class RangesConfig:
+    """Tunables of ``graph-ranges`` (ranges only, constant-velocity prior; :mod:`graphpos.graph.ranges`).
+
+    Parameters
+    ----------
+    accel_psd_m2ps3 : float
+        Power spectral density of the white acceleration of the
+        constant-velocity prior on each axis, m^2/s^3
+        (:func:`filters.models.vehicle.white_acceleration_noise`). Over
+        paper-straight seeds 0-4, in the tunnel: 0.03 gave 0.47 m RMS (dense
+        layout) and 0.72 m (optimized), ANEES 1.3 / 1.6; 0.1 gave 0.53 /
+        1.00 m and on the optimized layout two drives with keyframes
+        behind a wall (ANEES 6-7); 0.3 gave 1.15 m on the optimized layout.
+    robust_loss : {"huber", "cauchy", "none"}, robust_k : float
+        M-estimator of the range factors and its threshold (in sigmas), as
+        :class:`GraphConfig`.
+    range_sigma_scale : float
+        Factor on the range model's 1-sigma of every tag range (as
+        :class:`GraphConfig`: a tag's shadowing repeats from reading to reading).
+    gate_sigmas : float
+        The causal pass that gives the smoother its initial values skips a
+        range whose innovation exceeds this many sigmas.
+    batch_max_iterations : int
+        Levenberg-Marquardt iteration limit.
+    output_covariance : bool
+        Marginal east/north covariance of each output.
+    epoch_s : float
+        Readings taken within this long after an epoch's first reading
+        belong to that epoch (one keyframe, at the first reading's time).
+        Readings of one scan may be logged milliseconds apart (MRCLAM's
+        landmarks of one camera frame: 1 ms; its scans are 0.1 s and more
+        apart, the simulated drives' RFID scans a second); a keyframe per
+        reading made the system ill-conditioned (:func:`graphpos.graph.ranges._epochs`).
+        At 20 m/s, 10 ms moves the vehicle 0.2 m, well inside a range's sigma.
+    """
+
+    accel_psd_m2ps3: float = 0.03
+    robust_loss: str = "huber"
+    robust_k: float = 1.345
+    range_sigma_scale: float = 1.5
+    gate_sigmas: float = 3.5
+    batch_max_iterations: int = 100
+    output_covariance: bool = True
+    epoch_s: float = 0.01
+
+    def __post_init__(self) -> None:
+        if self.robust_loss not in ROBUST_LOSSES:
+            raise ConfigError(f"robust_loss must be one of {ROBUST_LOSSES}, got {self.robust_loss!r}")
+        require_positive_numbers(self)

@@ -159,8 +159,8 @@ class PlanarModel:
         pose = gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad).compose(gtsam.Pose2(delta.dx_m, delta.dy_m, delta.dtheta_rad))
         return self._state(pose, delta.mean_speed_mps)
 
-    def read(self, source, k: int, speed_mps: float) -> KeyframeState:
-        """Keyframe ``k`` from a smoother (or :class:`~graphpos.graph.smoothers.ValuesSource`)."""
+    def read(self, source, k: int, speed_mps: float, with_bias: bool = True) -> KeyframeState:
+        """Keyframe ``k`` from a smoother (or :class:`~graphpos.graph.smoothers.ValuesSource`); no bias to read."""
         return self._state(source.calculateEstimatePose2(X(k)), speed_mps)
 
     @staticmethod
@@ -366,12 +366,19 @@ class InertialModel:
         yaw = pred.attitude().yaw()
         return KeyframeState(pose.x(), pose.y(), yaw, float(v[0]), float(v[1]), state.bias)
 
-    def read(self, source, k: int, speed_mps: float) -> KeyframeState:
-        """Keyframe ``k`` from a smoother (or :class:`~graphpos.graph.smoothers.ValuesSource`)."""
+    def read(self, source, k: int, speed_mps: float, with_bias: bool = True) -> KeyframeState:
+        """Keyframe ``k`` from a smoother (or :class:`~graphpos.graph.smoothers.ValuesSource`).
+
+        ``with_bias=False`` leaves the bias unread (None): a fixed-lag
+        smoother may already have marginalised the bias node of a keyframe
+        still in its window (the node is as old as its first keyframe).
+        """
         pose = source.calculateEstimatePose3(X(k))
         v = source.calculateEstimateVector(V(k))
-        b = source.calculateEstimateConstantBias(self.bias_key(k))
-        bias = np.concatenate([b.accelerometer(), b.gyroscope()])
+        bias = None
+        if with_bias:
+            b = source.calculateEstimateConstantBias(self.bias_key(k))
+            bias = np.concatenate([b.accelerometer(), b.gyroscope()])
         return KeyframeState(pose.x(), pose.y(), pose.rotation().yaw(), float(v[0]), float(v[1]), bias)
 
     def position(self, values: gtsam.Values, k: int) -> tuple[float, float]:

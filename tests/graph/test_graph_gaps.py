@@ -30,9 +30,10 @@ from filters import ESTIMATORS as FILTERS
 from graphpos.drive import Drive
 from graphpos.errors import MissingChannelError
 from graphpos.graph import ESTIMATORS as GRAPHS
+from graphpos.graph import ODOMETRY_ESTIMATORS
 from graphpos.graph.config import GraphConfig
 
-GRAPH_KEYS = tuple(f"{name}/{p}" for name in sorted(GRAPHS) for p in ("planar", "inertial"))
+GRAPH_KEYS = tuple(f"{name}/{p}" for name in sorted(ODOMETRY_ESTIMATORS) for p in ("planar", "inertial"))
 #: Where the gaps begin, s (after the turn has begun, a third into the drive).
 GAP_AT_S = 12.0
 MAX_GAP_S = GraphConfig().max_odometry_gap_s

@@ -22,9 +22,10 @@ from filters import ESTIMATORS as FILTERS
 from graphpos.drive import Drive, Measurement
 from graphpos.errors import ConfigError
 from graphpos.graph import ESTIMATORS as GRAPHS
+from graphpos.graph import ODOMETRY_ESTIMATORS
 from graphpos.ranging import calibrated_model
 
-GRAPH_KEYS = tuple(f"{name}/{p}" for name in sorted(GRAPHS) for p in ("planar", "inertial"))
+GRAPH_KEYS = tuple(f"{name}/{p}" for name in sorted(ODOMETRY_ESTIMATORS) for p in ("planar", "inertial"))
 #: Which readings carry RSS only ("rss-only", "range-only": the references).
 MIXES = {
     "alternate": lambda n, rng: np.arange(n) % 2 == 0,

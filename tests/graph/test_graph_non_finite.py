@@ -25,8 +25,9 @@ from hypothesis import strategies as st
 from filters import ESTIMATORS as FILTERS
 from graphpos.drive import Drive, Measurement
 from graphpos.graph import ESTIMATORS as GRAPHS
+from graphpos.graph import ODOMETRY_ESTIMATORS
 
-AUTO_KEYS = tuple(f"{name}/auto" for name in sorted(GRAPHS))
+AUTO_KEYS = tuple(f"{name}/auto" for name in sorted(ODOMETRY_ESTIMATORS))
 FIELDS = {"imu": "yaw_rate_radps", "wheel": "speed_mps", "compass": "yaw_rad", "rfid": "range_m"}
 
 

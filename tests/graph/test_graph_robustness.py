@@ -9,7 +9,7 @@ from graph_drives import SYNTHETIC_MODEL, position_errors, range_model, syntheti
 from scipy import stats
 
 from graphpos.drive import Drive
-from graphpos.graph import ESTIMATORS
+from graphpos.graph import ESTIMATORS, ODOMETRY_ESTIMATORS
 from graphpos.graph.config import GraphConfig
 
 PARAMETERISATIONS = ("planar", "inertial")
@@ -23,7 +23,7 @@ def rms(errors: np.ndarray) -> float:
     return float(np.sqrt(np.mean(errors**2)))
 
 
-@pytest.mark.parametrize("name", sorted(ESTIMATORS))
+@pytest.mark.parametrize("name", sorted(ODOMETRY_ESTIMATORS))
 @pytest.mark.parametrize("parameterisation", PARAMETERISATIONS)
 def test_start_up_before_any_range_without_a_start_pose(name, parameterisation):
     # no start pose: the first 20 s (100 m) have no tags, then tags
@@ -39,7 +39,7 @@ def test_start_up_before_any_range_without_a_start_pose(name, parameterisation):
     assert rms(err[settled]) < 0.5
 
 
-@pytest.mark.parametrize("name", sorted(ESTIMATORS))
+@pytest.mark.parametrize("name", sorted(ODOMETRY_ESTIMATORS))
 def test_sixty_seconds_without_tags(name):
     drive = synthetic_drive(100, seed=8, tag_gap=(100.0, 420.0))
     assert np.diff(drive.rfid.t_s).max() >= 60.0
@@ -50,7 +50,7 @@ def test_sixty_seconds_without_tags(name):
     assert rms(err[est.t_s > 90.0]) < 0.5  # recovered after the gap
 
 
-@pytest.mark.parametrize("name", sorted(ESTIMATORS))
+@pytest.mark.parametrize("name", sorted(ODOMETRY_ESTIMATORS))
 @pytest.mark.parametrize("parameterisation", PARAMETERISATIONS)
 def test_standing_still(name, parameterisation):
     drive = synthetic_drive(30, seed=9, stop=(8.0, 22.0))
@@ -66,7 +66,7 @@ def test_failed_tag_is_outvoted(loss):
     rfid = drive.rfid
     bad = rfid.tag_id == 6  # this tag always reads 0.2 m
     failed = drive.replace(channels={**drive.channels, "rfid": rfid.replace(range_m=np.where(bad, 0.2, rfid.range_m))})
-    for name in ESTIMATORS:
+    for name in ODOMETRY_ESTIMATORS:
         est = run(name, failed, robust_loss=loss)
         assert rms(position_errors(failed, est)) < 0.35, name
 
