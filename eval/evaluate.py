@@ -35,6 +35,7 @@ from typing import Any
 from eval import plots
 from eval.execution import FileSource, Job, JobResult, describe_source, execute, failures, provenance
 from eval.metrics import WHOLE
+from eval.names import same_windows, window_name
 from eval.report import Report, Section, fmt, write_json
 from graphpos.drive import Drive
 from graphpos.errors import MissingChannelError, naming_file
@@ -137,11 +138,14 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
     broken = [c for c in drive_checks(drive) if c["verdict"] != "ok"]
     if broken:
         sec.text("Drive checks (graphpos info): " + "; ".join(f"{c['level']} {c['name']}: {c['message']}" for c in broken) + ".")
-    windows = [WHOLE] + sorted({w.label for w in drive.windows})
-    for window in windows:
+    # windows of identical bounds (in_tunnel and zone:tunnel) score the same epochs: one table for them
+    groups = [[WHOLE]] + sorted(same_windows(drive.windows), key=lambda g: g[0])
+    for labels in groups:
+        window = labels[0]
         header, rows = window_table(results, window)
         if rows:
-            sec.table(header, rows, caption=f"Window: {window}")
+            names = list(dict.fromkeys(window_name(w) for w in labels))
+            sec.table(header, rows, caption=f"Window: {' = '.join(names)} ({', '.join(labels)})")
             line = wheel_line(results, window)
             if line:
                 sec.text(line)

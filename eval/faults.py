@@ -446,7 +446,8 @@ def write_study(study: FaultStudy, folder: Path) -> Path:
                      [[f, json.dumps(s) if isinstance(s, dict) else s] for f, s in study.faults.items()])
         png = _figure(study, out)
         if png:
-            report.section("Error around each fault").figure(png)
+            report.section("Error around each fault").figure(
+                png, "One drive per fault: seed 0 (the tables average every seed).")
         report.section("Run").text(f"{sum(len(c) for c in study.cells.values())} runs in {study.wall_time_s:.0f} s.")
         write_json(out / "results.json", {
             "command": "fault-study", "scenario": study.scenario, "seeds": study.seeds,

@@ -2,7 +2,15 @@
 
 Each estimator is drawn in its colour of :func:`graphpos.colors.color_of`,
 the same in every figure, KML export and Foxglove map, whichever estimators
-a figure shows.
+a figure shows. Windows are shaded under their display names
+(:mod:`eval.names`). Legends sit outside the axes, to the right, so that
+they hide no track.
+
+Trajectories of a road drive (a tunnel 150 m long and 6 m wide, a street)
+are drawn in the route frame (:func:`route_frame`): distance along the true
+path against the cross-track offset from it, on a stretched cross-track
+axis, so that errors of a metre show; drives in an open area (Plaza, a room)
+are drawn on the map at equal aspect.
 """
 
 from __future__ import annotations
@@ -15,7 +23,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from eval.metrics import error_series, wheel_speed_error  # noqa: E402
+from eval.metrics import error_series, interpolate_truth, wheel_speed_error  # noqa: E402
+from eval.names import span_name  # noqa: E402
 from graphpos.colors import TRUTH_COLOR, color_of  # noqa: E402
 from graphpos.drive import Drive  # noqa: E402
 from graphpos.estimate import Estimate  # noqa: E402
@@ -33,10 +42,17 @@ def _save(fig, path: Path) -> Path:
     return path
 
 
+def _legend(ax) -> None:
+    """The legend outside the axes, on the right (none without labelled artists)."""
+    handles, labels = ax.get_legend_handles_labels()
+    if handles:
+        ax.legend(handles, labels, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
+
+
 def _label_axes(ax, xlabel: str, ylabel: str, title: str, ncol: int = 1) -> None:
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
-    ax.legend(fontsize=8, ncol=ncol)
+    _legend(ax)
     ax.set_title(title)
     ax.grid(alpha=0.3)
 
@@ -73,9 +89,94 @@ def _frame_on_truth(ax, drive: Drive, margin: float = 0.15) -> None:
     ax.set_ylim(n.min() - margin * span, n.max() + margin * span)
 
 
+def is_road_drive(drive: Drive) -> bool:
+    """A drive along a road (simulated, or with tunnel wall tags): drawn in the route frame."""
+    if not drive.has("truth") or len(drive.truth) < 2:
+        return False
+    return "scenario" in drive.params or bool(len(drive.tags) and np.any(drive.tags.wall_side != 0))
+
+
+def _along(drive: Drive) -> tuple[np.ndarray, np.ndarray]:
+    """Truth epochs and the distance travelled along the true path at each."""
+    t = drive.truth
+    return t.t_s, np.r_[0.0, np.cumsum(np.hypot(np.diff(t.east_m), np.diff(t.north_m)))]
+
+
+def route_frame(drive: Drive, estimate: Estimate) -> dict[str, np.ndarray]:
+    """An estimate in the true path's frame: ``along_m`` (distance the truth has travelled at the
+    estimate's epoch), ``cross_m`` (offset from the truth, left positive, across the true heading) and
+    ``along_error_m`` (ahead of the truth positive)."""
+    at = interpolate_truth(drive.truth, estimate.t_s)
+    t_truth, dist = _along(drive)
+    de = estimate.east_m[at.mask] - at.east_m
+    dn = estimate.north_m[at.mask] - at.north_m
+    c, s = np.cos(at.yaw_rad), np.sin(at.yaw_rad)
+    return {"along_m": np.interp(estimate.t_s[at.mask], t_truth, dist), "cross_m": -s * de + c * dn,
+            "along_error_m": c * de + s * dn}
+
+
+def _tags_in_route_frame(drive: Drive) -> tuple[np.ndarray, np.ndarray]:
+    """Each tag's distance along the true path (of its nearest truth point) and offset across it."""
+    if not len(drive.tags):
+        return np.zeros(0), np.zeros(0)
+    _, dist = _along(drive)
+    tr = drive.truth
+    step = max(1, len(tr) // 4000)
+    pe, pn, yaw, d = tr.east_m[::step], tr.north_m[::step], tr.yaw_rad[::step], dist[::step]
+    te, tn = drive.tags.east_m, drive.tags.north_m
+    k = np.argmin((te[:, None] - pe[None, :]) ** 2 + (tn[:, None] - pn[None, :]) ** 2, axis=1)
+    return d[k], -np.sin(yaw[k]) * (te - pe[k]) + np.cos(yaw[k]) * (tn - pn[k])
+
+
 def trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: str | None = None) -> Path:
-    """Truth and estimates over the tunnel walls and tags (the heard layout filled)."""
-    fig, ax = plt.subplots(figsize=(10, 5))
+    """Truth and estimates: in the route frame for a road drive (:func:`is_road_drive`), else on the map."""
+    if is_road_drive(drive):
+        return route_trajectories(drive, estimates, path, layout)
+    return map_trajectories(drive, estimates, path, layout)
+
+
+def route_trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: str | None = None) -> Path:
+    """Cross-track offset and along-track error against the distance along the true path (two panels,
+    the cross-track axis stretched to the tunnel's width)."""
+    fig, (top, bottom) = plt.subplots(2, 1, figsize=(11, 6.5), sharex=True, height_ratios=(3, 2))
+    along, offset = _tags_in_route_frame(drive)
+    if along.size:
+        for i, side in enumerate(sorted({int(v) for v in drive.tags.wall_side if v != 0})):
+            sel = drive.tags.wall_side == side
+            order = np.argsort(along[sel], kind="stable")
+            top.plot(along[sel][order], offset[sel][order], color="0.6", lw=2.5, alpha=0.5,
+                     label="tunnel walls" if i == 0 else None)
+        heard = np.isin(drive.tags.tag_id, drive.tags.layout(layout)) if layout else np.ones(len(drive.tags), bool)
+        top.scatter(along[heard], offset[heard], marker="s", s=12, color="k", label="tags", zorder=3)
+        if (~heard).any():
+            top.scatter(along[~heard], offset[~heard], marker="s", s=12, facecolors="none", edgecolors="0.5",
+                        label="tags not used", zorder=3)
+    top.axhline(0.0, color=TRUTH_COLOR, lw=1.2, ls="--", label="truth")
+    bottom.axhline(0.0, color=TRUTH_COLOR, lw=1.2, ls="--")
+    spread = []
+    for est in estimates:
+        rf = route_frame(drive, est)
+        top.plot(rf["along_m"], rf["cross_m"], lw=1.0, color=color_of(est.name), label=est.name)
+        bottom.plot(rf["along_m"], rf["along_error_m"], lw=1.0, color=color_of(est.name))
+        spread.append(np.abs(rf["cross_m"][np.isfinite(rf["cross_m"])]))
+    values = np.concatenate(spread) if spread else np.zeros(0)
+    # the tags and most of every track in view; a diverging estimate leaves the frame instead of squashing it
+    lim = max(4.0, float(np.percentile(values, 98)) * 1.15 if values.size else 4.0,
+              float(np.abs(offset).max()) * 1.15 if along.size else 0.0)
+    top.set_ylim(-lim, lim)
+    top.set_ylabel("cross-track offset [m]\n(left of the truth +)")
+    bottom.set_ylabel("along-track error [m]\n(ahead +)")
+    bottom.set_xlabel("distance along the true path [m]")
+    top.set_title(f"{drive.name}: trajectories in the route frame (cross-track axis stretched)")
+    for ax in (top, bottom):
+        ax.grid(alpha=0.3)
+    _legend(top)
+    return _save(fig, path)
+
+
+def map_trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: str | None = None) -> Path:
+    """Truth and estimates over the tunnel walls and tags (the heard layout filled), east against north."""
+    fig, ax = plt.subplots(figsize=(10, 6))
     for i, wall in enumerate(_walls(drive)):
         ax.plot(wall[:, 0], wall[:, 1], color="0.6", lw=2.5, alpha=0.5, label="tunnel walls" if i == 0 else None)
     if len(drive.tags):
@@ -93,41 +194,82 @@ def trajectories(drive: Drive, estimates: list[Estimate], path: Path, layout: st
     _frame_on_truth(ax, drive)
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
-    ax.legend(fontsize=8, loc="best")
+    _legend(ax)
     ax.set_title(f"{drive.name}: trajectories")
     ax.grid(alpha=0.3)
     return _save(fig, path)
 
 
-def _shade_windows(ax, drive: Drive) -> None:
+#: Shading of the windows by display name (start of it), the same in every plot.
+_WINDOW_COLORS = {
+    "approach": "#c6dbef",
+    "outside the tunnel": "#c6dbef",
+    "open area": "#c6dbef",
+    "in the tunnel": "#c7e9c0",
+    "exit": "#fdd0a2",
+    "street": "#fdd0a2",
+    "straight": "#d9d9d9",
+    "curve": "#dadaeb",
+    "during the fault": "#fcbba1",
+}
+
+
+def _time_origin(drive: Drive) -> float:
+    """Times are drawn from the drive's start on recorded drives (their clocks are Unix seconds or a
+    logger's); a simulated drive's clock starts at 0."""
+    return 0.0 if "scenario" in drive.params else float(drive.start_s)
+
+
+def _time_label(t0: float) -> str:
+    return "time from the drive's start [s]" if t0 else "time [s]"
+
+
+def _shade_windows(ax, drive: Drive, t0: float = 0.0) -> None:
     """Shade the labelled intervals: where the vehicle is (``in_tunnel``, ``zone:*``) over the full height,
-    the rest (``straight``, ``curve``, ``fault:*`` ...) as a strip along the top. Windows with the same
-    bounds share one colour and one legend entry."""
-    cmap = plt.get_cmap("Pastel1")
+    the rest (``straight``, ``curve``, ``fault:*`` ...) as a strip along the top, each under its display
+    name (:func:`eval.names.span_name`). Windows with the same bounds share one colour and one legend
+    entry (``in_tunnel`` and ``zone:tunnel`` are one: "in the tunnel")."""
+    cmap = plt.get_cmap("Pastel2")
+    tunnel = next(((w.start_s, w.end_s) for w in drive.windows if w.label == "in_tunnel"), None)
     spans: dict[tuple[float, float, bool], list[str]] = {}
     for w in drive.windows:
         full = w.label == "in_tunnel" or w.label.startswith("zone:")
         labels = spans.setdefault((w.start_s, w.end_s, full), [])
-        if w.label not in labels:
-            labels.append(w.label)
+        name = span_name(w.label, w.start_s, tunnel)
+        if name not in labels:
+            labels.append(name)
     legend: dict[str, int] = {}
     for (start, end, full), labels in spans.items():
-        name = " = ".join(labels)
+        name = " / ".join(labels)
         first = name not in legend
-        colour = cmap(legend.setdefault(name, len(legend)) % 9)
+        index = legend.setdefault(name, len(legend))
+        colour = next((c for key, c in _WINDOW_COLORS.items() if name.startswith(key)), cmap(index % 8))
         ymin, alpha = (0.0, 0.35) if full else (0.94, 0.9)
-        ax.axvspan(start, end, ymin=ymin, ymax=1.0, color=colour, alpha=alpha, lw=0, label=name if first else None)
+        ax.axvspan(start - t0, end - t0, ymin=ymin, ymax=1.0, color=colour, alpha=alpha, lw=0, label=name if first else None)
 
 
 def error_vs_time(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
     """Euclidean position error against time, labelled windows shaded."""
-    fig, ax = plt.subplots(figsize=(10, 4))
-    _shade_windows(ax, drive)
+    fig, ax = plt.subplots(figsize=(11, 4))
+    t0 = _time_origin(drive)
+    _shade_windows(ax, drive, t0)
+    high = []
     for est in estimates:
         s = error_series(drive, est)
-        ax.plot(s["t_s"], s["error_m"], lw=1.0, color=color_of(est.name), label=est.name)
+        ax.plot(s["t_s"] - t0, s["error_m"], lw=1.0, color=color_of(est.name), label=est.name)
+        err = s["error_m"][np.isfinite(s["error_m"])]
+        if err.size:
+            high.append((float(np.percentile(err, 99)), float(err.max())))
+    title = f"{drive.name}: position error"
+    if high:
+        # one estimator far off (an RSS filter on UWB data) must not flatten the others: clip the axis
+        top = 3.0 * float(np.median([h[0] for h in high]))
+        peak = max(h[1] for h in high)
+        if 0 < top < peak:
+            ax.set_ylim(0, top)
+            title += f" (axis clipped at {top:.1f} m; largest {peak:.1f} m)"
     ax.set_ylim(bottom=0)
-    _label_axes(ax, "time [s]", "position error [m]", f"{drive.name}: position error", ncol=2)
+    _label_axes(ax, _time_label(t0), "position error [m]", title, ncol=2)
     return _save(fig, path)
 
 
@@ -150,13 +292,14 @@ def speed_error(drive: Drive, estimates: list[Estimate], path: Path) -> Path | N
     wheel_t, wheel_err = wheel_speed_error(drive)
     if not with_velocity and not wheel_err.size:
         return None
-    fig, ax = plt.subplots(figsize=(10, 4))
+    fig, ax = plt.subplots(figsize=(11, 4))
+    t0 = _time_origin(drive)
     if wheel_err.size:
-        ax.plot(wheel_t, wheel_err, color="0.6", lw=0.6, label="raw wheel speed")
+        ax.plot(wheel_t - t0, wheel_err, color="0.6", lw=0.6, label="raw wheel speed")
     for est in with_velocity:
         s = error_series(drive, est)
-        ax.plot(s["t_s"], s["speed_error_mps"], lw=1.0, color=color_of(est.name), label=est.name)
-    _label_axes(ax, "time [s]", "speed error [m/s]", f"{drive.name}: speed error against truth", ncol=2)
+        ax.plot(s["t_s"] - t0, s["speed_error_mps"], lw=1.0, color=color_of(est.name), label=est.name)
+    _label_axes(ax, _time_label(t0), "speed error [m/s]", f"{drive.name}: speed error against truth", ncol=2)
     return _save(fig, path)
 
 

@@ -13,6 +13,7 @@ import base64
 import html
 import json
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,9 +31,15 @@ class Table:
 
 
 @dataclass
+class Figure:
+    path: Path
+    caption: str = ""
+
+
+@dataclass
 class Section:
     title: str
-    blocks: list[Any] = field(default_factory=list)  # str (paragraph), Table, Path (figure)
+    blocks: list[Any] = field(default_factory=list)  # str (paragraph), Table, Figure
     level: int = 2
 
     def text(self, paragraph: str) -> "Section":
@@ -43,8 +50,8 @@ class Section:
         self.blocks.append(Table(header, rows, caption))
         return self
 
-    def figure(self, png: Path) -> "Section":
-        self.blocks.append(Path(png))
+    def figure(self, png: Path, caption: str = "") -> "Section":
+        self.blocks.append(Figure(Path(png), caption))
         return self
 
 
@@ -70,9 +77,12 @@ class Report:
                     out.append("| " + " | ".join(block.header) + " |")
                     out.append("|" + "|".join("---" for _ in block.header) + "|")
                     out += ["| " + " | ".join(row) + " |" for row in block.rows]
-                elif isinstance(block, Path):
-                    rel = block.relative_to(folder) if block.is_relative_to(folder) else block
-                    out.append(f"![{block.stem}]({rel.as_posix()})")
+                elif isinstance(block, Figure):
+                    path = block.path
+                    rel = path.relative_to(folder) if path.is_relative_to(folder) else path
+                    out.append(f"![{path.stem}]({rel.as_posix()})")
+                    if block.caption:
+                        out += ["", f"*{block.caption}*"]
                 else:
                     out.append(block)
                 out.append("")
@@ -89,20 +99,25 @@ class Report:
                     cap = f"<caption>{html.escape(block.caption)}</caption>" if block.caption else ""
                     head = "".join(f"<th>{html.escape(h)}</th>" for h in block.header)
                     rows = "".join(
-                        "<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in row) + "</tr>" for row in block.rows
+                        "<tr>" + "".join(f"<td{_align(c)}>{html.escape(c)}</td>" for c in row) + "</tr>"
+                        for row in block.rows
                     )
                     body.append(f"<table>{cap}<thead><tr>{head}</tr></thead><tbody>{rows}</tbody></table>")
-                elif isinstance(block, Path):
-                    data = base64.b64encode(block.read_bytes()).decode()
-                    body.append(f'<figure><img alt="{html.escape(block.stem)}" src="data:image/png;base64,{data}"/></figure>')
+                elif isinstance(block, Figure):
+                    data = base64.b64encode(block.path.read_bytes()).decode()
+                    cap = f"<figcaption>{html.escape(block.caption)}</figcaption>" if block.caption else ""
+                    body.append(f'<figure><img alt="{html.escape(block.path.stem)}" '
+                                f'src="data:image/png;base64,{data}"/>{cap}</figure>')
                 else:
                     body.append(f"<p>{html.escape(block)}</p>")
         style = (
-            "body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}"
+            "body{font-family:system-ui,sans-serif;max-width:1400px;margin:2em auto;padding:0 1em;color:#222}"
             "table{border-collapse:collapse;margin:1em 0;font-size:0.9em}"
-            "td,th{border:1px solid #bbb;padding:3px 8px;text-align:right}th{background:#eee}"
-            "td:first-child,th:first-child{text-align:left}caption{text-align:left;font-style:italic;padding:4px 0}"
-            "img{max-width:100%}"
+            "td,th{border:1px solid #bbb;padding:3px 8px;text-align:left;vertical-align:top}"
+            "th{background:#eee;vertical-align:bottom}td.num{text-align:right}"
+            "caption{text-align:left;font-style:italic;padding:4px 0}"
+            "img{max-width:100%}figure{margin:1em 0}figcaption{font-style:italic;color:#555;font-size:0.9em}"
+            "h3{margin-top:1.5em}"
         )
         return (
             "<!DOCTYPE html><html><head><meta charset='utf-8'>"
@@ -117,6 +132,11 @@ class Report:
         md = write_atomically(folder / "report.md", self.markdown(folder))
         page = write_atomically(folder / "report.html", self.html())
         return md, page
+
+
+def _align(cell: str) -> str:
+    """Figures (``1.23``, ``−4 %``, ``0.5 ± 0.1 / 1.2``, an en dash) right-aligned; words left."""
+    return ' class="num"' if re.match(r"^[-−–+]?(\d|–$)", cell.strip()) else ""
 
 
 def _jsonable(value: Any) -> Any:

@@ -2,7 +2,8 @@
 
 :data:`ESTIMATOR_COLORS` gives each registered estimator its colour
 (matplotlib's ``tab20`` colours, the strong ones to the estimators the
-reports compare most); the truth is black. A name not in the table (an
+reports compare most, and two of ``tab20b`` for the graph variants added
+later); the truth is black. A name not in the table (an
 estimator added later, a test's) takes a colour of :data:`SPARE_COLORS`
 chosen by a checksum of its name, so that it too keeps its colour from one
 run to the next. The plots (:mod:`eval.plots`), the KML exports
@@ -24,6 +25,8 @@ ESTIMATOR_COLORS: dict[str, str] = {
     "graph-isam2": "#2ca02c",
     "graph-batch": "#d62728",
     "graph-fixed-lag": "#9467bd",
+    "graph-fixed-lag-smoothed": "#7b4173",
+    "graph-ranges": "#637939",
     "two-level-ekf": "#8c564b",
     "rfid-ekf": "#e377c2",
     "multilateration": "#7f7f7f",

@@ -51,13 +51,26 @@ def register(sub) -> None:
     _add_execution_options(p)
     p.set_defaults(func=_evaluate)
 
-    p = sub.add_parser("reproduce", help="reproduce the papers' tables on simulated drives (and Plaza)",
+    p = sub.add_parser("reproduce", help="reproduce the papers' tables on simulated drives (and real data)",
                        description="The papers' experiments on simulated drives built to their specifications, "
-                                   "published figures beside ours, the factor-graph estimators as extra columns.")
-    p.add_argument("--quick", action="store_true", help="fewer seeds and patterns (under 3 minutes on 2 cores)")
-    p.add_argument("--seeds", type=int, default=None, help="seeds per experiment (default 5, quick 2)")
+                                   "published figures beside ours on each simulator sensor profile, the "
+                                   "factor-graph estimators as extra rows; Plaza and MRCLAM when present.")
+    p.add_argument("--quick", action="store_true",
+                   help="fewer seeds, patterns and studies, the first seconds of the real data (under 2 minutes on 2 cores)")
+    p.add_argument("--seeds", type=int, default=None,
+                   help="seeds per experiment (default 5; quick: 2 on the paper profile, 1 on the ideal one)")
+    p.add_argument("--profile", choices=("ideal", "paper", "both"), default="both",
+                   help="simulator sensor profile of the simulated drives (graphpos simulate --profile): ideal "
+                        "(white-noise sensors), paper (sensor errors like the papers' road tests) or both "
+                        "(default); not a calibration profile")
+    p.add_argument("--only", action="append", default=None, metavar="KEY",
+                   help="run only this experiment (repeat; a key of results.json's tables, e.g. song2016-table3, "
+                        "or a prefix, e.g. song2016-table4)")
     p.add_argument("--plaza", type=Path, default=None, metavar="FILE.mat",
                    help="the Plaza dataset (default: <repo>/../shared/data/plaza/Plaza1.mat when present)")
+    p.add_argument("--mrclam", type=Path, default=None, metavar="DIR",
+                   help="a UTIAS MRCLAM dataset folder (default: <repo>/../shared/data/mrclam/MRCLAM_Dataset6 "
+                        "when present)")
     _add_execution_options(p)
     p.set_defaults(func=_reproduce)
 
@@ -122,7 +135,8 @@ def _reproduce(args) -> int:
 
     started = time.perf_counter()
     check_output_folder(args.output)
-    outcome = reproduce(args.output, quick=args.quick, seeds=args.seeds, plaza=args.plaza,
+    outcome = reproduce(args.output, quick=args.quick, seeds=args.seeds, plaza=args.plaza, mrclam=args.mrclam,
+                        profile=args.profile, only=args.only,
                         workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
     return _finish(outcome, started, "reproduce")
 

@@ -38,7 +38,7 @@ def test_evaluate_writes_every_artefact(tmp_path, drive, test_estimators):
     html = (out / "report.html").read_text()
     assert html.count("data:image/png;base64,") == 4
     md = (out / "report.md").read_text()
-    assert "Window: in_tunnel" in md and "straight/trajectories.png" in md
+    assert "Window: in the tunnel (in_tunnel)" in md and "straight/trajectories.png" in md
     res = json.loads((out / "results.json").read_text())
     whole = res["results"][0]["metrics"]["windows"]["whole"]
     # 0.5 m per axis: RMS of the 2-D error ~ 0.5 sqrt(2), ANEES ~ 2 (consistent)
@@ -98,3 +98,14 @@ def test_two_drives_of_the_same_name_get_their_own_folders(tmp_path, drive, make
     assert (tmp_path / "straight-2" / "trajectories.png").exists()
     res = json.loads((tmp_path / "results.json").read_text())
     assert [r["metrics"]["n_outputs"] for r in res["results"]] == [len(drive.truth), len(other.truth)]
+
+
+def test_windows_of_identical_bounds_share_one_table(tmp_path, make_drive, test_estimators):
+    from graphpos.drive import Window
+
+    base = make_drive()
+    drive = base.replace(windows=base.windows + (Window("zone:tunnel", 2.0, 6.0),))
+    evaluate([(drive, drive)], ["noisy-truth"], tmp_path, workers=1, progress=False, mcap=False)
+    md = (tmp_path / "report.md").read_text()
+    assert md.count("Window: ") == 3  # whole, in the tunnel (in_tunnel, zone:tunnel), zone a
+    assert "Window: in the tunnel (in_tunnel, zone:tunnel)" in md

@@ -31,16 +31,80 @@ def test_reproduce_tables_with_failures_in_cells(tmp_path, monkeypatch):
     monkeypatch.setattr(reproduce_module, "experiments", lambda: tiny)
     monkeypatch.setattr(reproduce_module, "DEGRADED_ESTIMATORS", (("rfid-ekf", "dense"),))
     monkeypatch.setattr(reproduce_module, "default_plaza_path", lambda: tmp_path / "absent.mat")
-    outcome = reproduce_module.reproduce(tmp_path / "out", seeds=2, workers=1, progress=False)
+    monkeypatch.setattr(reproduce_module, "default_mrclam_path", lambda: tmp_path / "absent")
+    outcome = reproduce_module.reproduce(tmp_path / "out", seeds=2, workers=1, progress=False, profile="paper",
+                                         duration_s=40.0)
     md = (tmp_path / "out" / "report.md").read_text()
-    assert "| RFID-EKF | dense | 9.27 | 5.07 |" in md
+    assert "| RFID-EKF | RFID ranges only | dense | 9.27 / 5.07 |" in md
     assert "FAILED: ConfigError: unknown estimator 'no-such'" in md
-    assert "Late measurements and faults" in md and "fault:rfid_blackout" in md and "Plaza" in md and "song2016 Table 1" in md
+    assert ("Late measurements and faults" in md and "during the fault rfid blackout" in md and "Plaza" in md
+            and "MRCLAM" in md and "song2016 Table 1" in md)
+    assert "ours, ideal profile" not in md and "ours, paper profile" in md
     assert [r.job.estimator for r in outcome.failures] == ["no-such", "no-such"]
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     row = res["tables"]["t"]["rows"][0]
     assert len(row["rms_m"]) == 2 and all(v > 0 for v in row["rms_m"])
+    assert row["profiles"]["paper"]["rms_m"] == row["rms_m"] and row["sensors"] == "RFID ranges only"
+    assert set(res["profiles"]) == {"paper"}
     assert (tmp_path / "out" / "report.html").read_text().count("data:image/png") >= 2
+
+
+def test_reproduce_both_profiles_and_real_data_failures(tmp_path, monkeypatch):
+    """Both simulator profiles side by side, the ±30 % verdict, and MRCLAM cells FAILED rather than a crash."""
+    if not reproduce_module.default_mrclam_path().is_dir():
+        pytest.skip("MRCLAM Dataset 6 not present")
+    monkeypatch.setattr(reproduce_module, "default_plaza_path", lambda: tmp_path / "absent.mat")
+    monkeypatch.setattr(reproduce_module, "QUICK_MRCLAM_ROBOTS", (1, 2))
+    monkeypatch.setattr(reproduce_module, "MRCLAM_ESTIMATORS", ("dr", "no-such"))
+    monkeypatch.setattr(reproduce_module, "QUICK_MRCLAM_S", 20.0)
+    outcome = reproduce_module.reproduce(tmp_path / "out", quick=True, only=["song2016-table2"], duration_s=30.0,
+                                         degraded=False, table1=False, workers=2, progress=False)
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "ours, ideal profile: max / RMS [m]" in md and "ours, paper profile: max / RMS [m]" in md
+    assert "paper-profile RMS within ±30% of published?" in md and "graph-ranges (ours, graph)" in md
+    assert "published RMS figures ours match within ±30%" in md
+    assert "### MRCLAM (UTIAS Dataset 6)" in md and "| no-such | – | FAILED: ConfigError" in md
+    assert "robot(s) 1, 2 only, the first 20 s of each" in md and "What --quick cuts" in md
+    res = json.loads((tmp_path / "out" / "results.json").read_text())
+    assert res["profiles"]["ideal"]["seeds"] == 1 and res["profiles"]["paper"]["seeds"] == 2
+    assert res["tables"]["mrclam"]["rows"][0]["robots"] == [1, 2]
+    assert {r.job.estimator for r in outcome.failures} >= {"no-such"}
+
+
+def test_display_names_and_verdicts():
+    from eval.names import same_windows, sensors_of, span_name, window_name
+    from graphpos.drive import Window
+
+    assert window_name("in_tunnel") == window_name("zone:tunnel") == "in the tunnel"
+    assert span_name("zone:approach", 0.0, (7.0, 67.0)).startswith("approach")
+    assert span_name("zone:approach", 67.0, (7.0, 67.0)).startswith("exit")
+    assert window_name("fault:rfid_blackout") == "during the fault rfid blackout"
+    windows = [Window("in_tunnel", 7, 67), Window("zone:tunnel", 7, 67), Window("zone:approach", 0, 7),
+               Window("zone:approach", 67, 76)]
+    assert same_windows(windows) == [["in_tunnel", "zone:tunnel"], ["zone:approach"]]
+    assert sensors_of("rfid-ekf") == "RFID ranges only" == sensors_of("graph-ranges")
+    assert sensors_of("fusion-ekf", ["imu", "wheel", "compass", "rfid", "truth"]) == "RFID + IMU + wheel + compass"
+    assert reproduce_module.match_cell(3.5, 5.0) == "no (−30%)" or reproduce_module.match_cell(3.6, 5.0) == "yes (−28%)"
+    assert reproduce_module.match_cell(6.0, 5.0) == "yes (+20%)" and reproduce_module.match_cell(1.0, None) == "–"
+    exp = Experiment(key="k", paper="p", title="t", scenario="paper-straight",
+                     rows=(Row("a", "A", (1.0, 1.0)), Row("b", "B", (2.0, 2.0))))
+    assert reproduce_module._ordering(exp, {exp.rows[0]: 0.5, exp.rows[1]: 0.7}) == (["A", "B"], "yes")
+    assert reproduce_module._ordering(exp, {exp.rows[0]: 0.9, exp.rows[1]: 0.7})[1] == "no: B < A"
+
+
+def test_route_frame_of_an_offset_track(make_drive):
+    import numpy as np
+
+    from eval.plots import is_road_drive, route_frame
+    from graphpos.estimate import Estimate
+
+    drive = make_drive(yaw_rad=np.pi / 2)  # driving north at 2 m/s
+    t = drive.truth.t_s
+    est = Estimate("x", t, drive.truth.east_m - 1.0, drive.truth.north_m + 0.5)  # 1 m west = left, 0.5 m ahead
+    rf = route_frame(drive, est)
+    assert np.allclose(rf["cross_m"], 1.0) and np.allclose(rf["along_error_m"], 0.5)
+    assert np.allclose(rf["along_m"], 2.0 * (t - t[0]))
+    assert is_road_drive(drive)  # wall tags
 
 
 def test_layout_study_curve(tmp_path):
