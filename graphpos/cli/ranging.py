@@ -22,8 +22,9 @@ def register(sub) -> None:
     p = commands.add_parser("table1", help="song2016 Table 1 on simulated calibration data",
                             description="Mean and STD of the fitting errors of LSSVM and the propagation model "
                                         "in the laboratory, outdoor and tunnel environments, beside the "
-                                        "published Table 1 (see graphpos/ranging/table1.py for what the "
-                                        "error is measured in).")
+                                        "published Table 1, in metres and in RSS units (the paper's units are unstated), with "
+                                        "the LSSVM/propagation STD ratio beside the paper's (see "
+                                        "graphpos/ranging/table1.py for what the error is measured in).")
     p.add_argument("--seed", type=int, default=None, help="seed of the simulated collections (default 2016)")
     p.add_argument("--json", action="store_true",
                    help="print {environment: {lssvm: {mean, std, ...}, propagation: {...}}} as JSON")
