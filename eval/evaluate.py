@@ -5,6 +5,7 @@ Output folder layout::
     results.json              every figure + provenance (versions, configs, drives)
     report.md, report.html    tables and plots (the HTML embeds the plots)
     <drive>/trajectories.png, error_vs_time.png, error_cdf.png, speed_error.png
+    <drive>/bound_vs_time.png  the position bound along the drive beside the errors
     <drive>/<estimator>.tum|.kml|.geojson|.csv   per-estimator exports
     <drive>/truth.tum|.kml|.geojson|.csv         the truth's (evo_ape tum truth.tum <estimator>.tum)
     <drive>/all_estimates.kml  every track in one Google Earth file
@@ -18,6 +19,11 @@ the same as ``graphpos run`` writes.
 (:func:`graphpos.io.outputs.safe_name`); two drives of one name get
 ``<drive>-2`` and so on. The folder is written by
 :func:`graphpos.io.outputs.output_folder`: complete or absent.
+
+Each drive's tables hold the posterior Cramer-Rao bound on the position
+error (:mod:`eval.bounds`, issue 18): a row per bound (smoother, filtering)
+and each estimator's efficiency (its RMS over its matching bound's RMS);
+results.json holds them per drive (``drives[i].bound``).
 
 Truth is for scoring only (issue 13): the workers hand every estimator the
 drive without its truth (:meth:`graphpos.drive.Drive.without_truth`) and
@@ -33,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from eval import plots
+from eval.bounds import BOUND_LABELS, NO_BOUND, DriveBound, bound_kind, drive_bounds, result_efficiency
 from eval.execution import FileSource, Job, JobResult, describe_source, execute, failures, provenance
 from eval.metrics import WHOLE
 from eval.names import same_windows, window_name
@@ -128,10 +135,49 @@ def wheel_line(results: list[JobResult], window: str) -> str | None:
     return None
 
 
+def with_bound(header: list[str], rows: list[list[str]], results: list[JobResult], window: str,
+               bound: DriveBound) -> tuple[list[str], list[list[str]]]:
+    """A :func:`window_table` with the position bound: an efficiency column (each estimator's RMS over its
+    matching bound's RMS, :func:`eval.bounds.bound_kind`) and one row per bound (its RMS in the RMS column,
+    or "— (why)" where there is no bound)."""
+    by_name = {r.job.estimator: r for r in results}
+    out = []
+    for row in rows:
+        r = by_name.get(row[0])
+        eff = result_efficiency(r, bound, window) if r is not None else math.nan
+        out.append(row + [f"{fmt(eff)} ({bound_kind(row[0])})" if math.isfinite(eff) else NO_BOUND])
+    column = header.index("RMS [m]") if bound.ok else 1
+    for kind, label in BOUND_LABELS.items():
+        line = [label] + [""] * len(header)
+        line[column] = bound.cell(window, kind)
+        out.append(line)
+    return header + ["RMS / bound"], out
+
+
+def bound_record(bound: DriveBound, results: list[JobResult]) -> dict[str, Any]:
+    """A drive's bound in results.json: :meth:`DriveBound.record` over the whole drive and its windows, and
+    each estimator's matching bound and efficiency per window."""
+    windows = bound.windows()
+    return bound.record(windows) | {
+        "efficiency": {r.job.estimator: {w: result_efficiency(r, bound, w) for w in windows} for r in results},
+        "bound_kind": {r.job.estimator: bound_kind(r.job.estimator) for r in results},
+    }
+
+
+#: What the bound rows and the efficiency column are, below each drive's tables.
+BOUND_TEXT = ("Bound rows: the posterior Cramer-Rao bound on the position error (graphpos.bound: graph-batch's "
+              "factor graph with the drive's sensor noise levels, linearised at the truth), the RMS over the window "
+              "of sqrt(trace) of the east/north covariance bound. Smoother: from the whole drive; filtering: from the "
+              "data up to each epoch. RMS / bound: each estimator's RMS over its matching bound's (the smoother "
+              "bound for graph-batch and graph-fixed-lag-smoothed, the filtering bound for the causal estimators); "
+              "1 is the best the data allow. Drives without simulator noise levels use graph-batch's defaults.")
+
+
 def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], sub: Path,
-                       layout: str | None = None, bags: bool = True) -> Section:
+                       layout: str | None = None, bags: bool = True, bound: DriveBound | None = None) -> Section:
     """Tables, plots and exports of one drive (files in the folder ``sub``; ``bags``: see
-    :func:`graphpos.io.exports.write_exports`)."""
+    :func:`graphpos.io.exports.write_exports`; ``bound``: the drive's position bound, a row and an
+    efficiency column in each table and a plot)."""
     sec = report.section(f"Drive {drive.name}")
     sec.text(f"Duration {drive.duration_s:.1f} s; channels {', '.join(drive.channels)}; "
              f"{len(drive.tags)} tags, {len(drive.rsus)} RSUs" + (f"; layout {layout}" if layout else "") + ".")
@@ -143,6 +189,8 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
     for labels in groups:
         window = labels[0]
         header, rows = window_table(results, window)
+        if rows and bound is not None:
+            header, rows = with_bound(header, rows, results, window, bound)
         if rows:
             names = list(dict.fromkeys(window_name(w) for w in labels))
             sec.table(header, rows, caption=f"Window: {' = '.join(names)} ({', '.join(labels)})")
@@ -158,8 +206,12 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
         speed = plots.speed_error(drive, estimates, sub / "speed_error.png")
         if speed:
             sec.figure(speed)
+        if bound is not None and bound.ok:
+            sec.figure(plots.bound_vs_time(drive, estimates, bound.bound, sub / "bound_vs_time.png"))
     else:
         sec.text("No estimator gave a track on this drive (see the table and Failures): no plots.")
+    if bound is not None:
+        sec.text(BOUND_TEXT if bound.ok else f"Position bound: {NO_BOUND} ({bound.reason}).")
     write_exports(sub, drive, [r.estimate for r in results if r.ok and r.estimate is not None], bags=bags)
     sec.text(f"Exports in {sub.name}/: <estimator>.tum (evo), .kml (Google Earth), .geojson, .csv and the same of "
              "the truth (truth.tum ...); all_estimates.kml holds every track"
@@ -171,7 +223,7 @@ def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], s
 def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Path, layout: str | None = None,
              range_model: Any = None, workers: int | None = None, scheduler: str | None = None,
              progress: bool = True, mcap: bool = True, settings: dict[str, dict[str, str]] | None = None,
-             initial_pose: Any = None, profile: Any = None) -> Outcome:
+             initial_pose: Any = None, profile: Any = None, bound: bool = True) -> Outcome:
     """Run ``estimators`` on ``drives`` (without their truth) and write the evaluation folder.
 
     Parameters
@@ -195,6 +247,9 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
     profile : graphpos.profile.SensorProfile, optional
         A sensor profile (``--profile``) for every estimator; recorded in
         results.json (``profile``).
+    bound : bool
+        Compute each drive's position bound (:mod:`eval.bounds`, in the
+        workers) for the tables, a plot and results.json.
     """
     settings = settings or {}
     for source, drive in drives:
@@ -212,6 +267,8 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
             for name in estimators
         ]
         results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="evaluate")
+        bounds = (drive_bounds([(source, layout) for source, _ in drives], workers=workers, scheduler=scheduler)
+                  if bound else [None] * len(drives))
         report = Report("graphpos evaluation")
         report.section("Set-up").text(
             f"Estimators: {', '.join(estimators)}. Errors are absolute (estimate minus truth interpolated at the "
@@ -233,7 +290,7 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
                 copy += 1
                 stem = f"{base}-{copy}"
             used.add(stem)
-            add_drive_sections(report, drive, mine, out / stem, layout=layout, bags=mcap)
+            add_drive_sections(report, drive, mine, out / stem, layout=layout, bags=mcap, bound=bounds[i])
         add_failure_section(report, results)
         write_json(out / "results.json", {
             "command": "evaluate",
@@ -244,8 +301,10 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
             "initial_pose": start_pose_record(initial_pose),
             "profile": profile.to_dict() if profile is not None else None,
             "drives": [describe_source(s) | {"name": d.name, "params": d.params,
-                                             "checks": [c for c in drive_checks(d) if c["verdict"] != "ok"]}
-                       for s, d in drives],
+                                             "checks": [c for c in drive_checks(d) if c["verdict"] != "ok"],
+                                             "bound": bound_record(b, [r for r in results if r.job.tag["drive_index"] == i])
+                                             if b is not None else None}
+                       for i, ((s, d), b) in enumerate(zip(drives, bounds))],
             "results": [result_record(r) for r in results],
         })
         report.write(out)

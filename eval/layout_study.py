@@ -5,6 +5,9 @@ every 60/90/120 m) is heard by each estimator on the same drives (seeds); the
 RMS error in the tunnel against the number of tags is the cost/accuracy
 curve. The drives are the same for every layout: a layout only drops the
 readings of the tags it does not keep (:meth:`graphpos.drive.Drive.with_layout`).
+Beside the errors, the position bound of each layout (:mod:`eval.bounds`:
+the RMS over the tunnel of the filtering and smoother bounds, mean over the
+same seeds) says how much of the error the tags leave whatever the estimator.
 """
 
 from __future__ import annotations
@@ -15,6 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from eval import plots
+from eval.bounds import KINDS, bounds_cell, drive_bounds
 from eval.evaluate import Outcome, add_failure_section, result_record
 from eval.execution import Job, SimSource, execute, load_drive, provenance
 from eval.reproduce import seeds_cell, window_stat
@@ -54,11 +58,22 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
         jobs += [Job(src, BASELINE) for src in sources]
         results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="layout-study")
         by = {(j.layout, j.estimator, j.source): r for j, r in zip(jobs, results)}
+        bound_keys = [(src, lay) for lay in layouts for src in sources]
+        bounds = dict(zip(bound_keys, drive_bounds(bound_keys, workers=workers, scheduler=scheduler)))
 
         points: dict[str, list[tuple[float, float, float]]] = {}
+        bound_points: dict[str, list[tuple[float, float]]] = {kind: [] for kind in KINDS}
         rows, record = [], []
         for lay in layouts:
             row = [lay, str(n_tags[lay])]
+            bs = [bounds[(s, lay)] for s in sources]
+            bound_m = {kind: [b.rms_m("in_tunnel", kind) for b in bs] for kind in KINDS}
+            bound_mean_m = {kind: float(np.nanmean(v)) if np.isfinite(v).any() else float("nan")
+                            for kind, v in bound_m.items()}
+            for kind in KINDS:
+                bound_points[kind].append((n_tags[lay], bound_mean_m[kind]))
+            bound_fields = {f"bound_{kind}_m": bound_mean_m[kind] for kind in KINDS} | {
+                "bound_seeds_m": bound_m, "bound_errors": [b.reason for b in bs]}
             for est in names:
                 rs = [by[(lay, est, s)] for s in sources]
                 rms = [window_stat(r, "in_tunnel", "rms_m") for r in rs]
@@ -68,10 +83,11 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
                 row.append(seeds_cell(rs, "in_tunnel", "rms_m"))
                 record.append({"layout": lay, "n_tags": n_tags[lay], "estimator": est, "rms_in_tunnel_m": rms,
                                "max_in_tunnel_m": [window_stat(r, "in_tunnel", "max_m") for r in rs],
-                               "errors": [r.error for r in rs]})
-            rows.append(row)
+                               "errors": [r.error for r in rs]} | bound_fields)
+            rows.append(row + [bounds_cell(bs, "in_tunnel", kind) for kind in KINDS])
         baseline = [by[(None, BASELINE, s)] for s in sources]
-        rows.append([f"no tags ({BASELINE})", "0"] + [seeds_cell(baseline, "in_tunnel", "rms_m")] * len(names))
+        rows.append([f"no tags ({BASELINE})", "0"] + [seeds_cell(baseline, "in_tunnel", "rms_m")] * len(names)
+                    + ["–"] * len(KINDS))
         base_rms = [window_stat(r, "in_tunnel", "rms_m") for r in baseline]
         record.append({"layout": None, "n_tags": 0, "estimator": BASELINE, "rms_in_tunnel_m": base_rms,
                        "errors": [r.error for r in baseline]})
@@ -79,13 +95,15 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
         report = Report(f"graphpos layout-study — {scenario}")
         sec = report.section("RMS position error in the tunnel against the number of tags")
         sec.text(f"Mean ± STD over {seeds} seed(s) of the Euclidean RMS error in the in_tunnel window, metres. "
-                 "Same drives for every layout; a layout keeps only its tags' readings.")
-        sec.table(["layout", "tags"] + names, rows)
+                 "Same drives for every layout; a layout keeps only its tags' readings. Bound columns: the RMS over "
+                 "the tunnel of sqrt(trace) of the posterior Cramer-Rao bound (graphpos.bound) on the same drives, "
+                 "mean ± STD over the seeds; filtering for the causal estimators, smoother for graph-batch.")
+        sec.table(["layout", "tags"] + names + [f"bound ({kind}) [m]" for kind in KINDS], rows)
         sec.text(f"The last row is dead reckoning ({BASELINE}: wheel speed, gyro and compass, no tags) on the same "
                  "drives: what the tags have to beat.")
         ok = [v for v in base_rms if np.isfinite(v)]
         sec.figure(plots.cost_accuracy(points, out / "cost_accuracy.png", f"{scenario}: cost against accuracy",
-                                       baseline_m=float(np.mean(ok)) if ok else None))
+                                       baseline_m=float(np.mean(ok)) if ok else None, bounds=bound_points))
         add_failure_section(report, results)
         took = time.perf_counter() - started
         report.section("Run").text(f"{len(results)} runs in {took:.0f} s.")

@@ -304,15 +304,21 @@ def speed_error(drive: Drive, estimates: list[Estimate], path: Path) -> Path | N
 
 
 def cost_accuracy(points: dict[str, list[tuple[float, float, float]]], path: Path, title: str,
-                  baseline_m: float | None = None) -> Path:
+                  baseline_m: float | None = None, bounds: dict[str, list[tuple[float, float]]] | None = None) -> Path:
     """RMS error (with spread bars) against number of tags, one line per estimator.
 
     ``points``: estimator -> [(n_tags, mean RMS, STD of RMS over seeds)]; ``baseline_m``: the RMS
-    without tags (dead reckoning), drawn as a horizontal line.
+    without tags (dead reckoning), drawn as a horizontal line; ``bounds``: bound kind (``smoother``,
+    ``filtering``) -> [(n_tags, mean over seeds of the bound's RMS)], drawn in the truth's colour.
     """
     fig, ax = plt.subplots(figsize=(7, 4.5))
     if baseline_m is not None:
         ax.axhline(baseline_m, color="0.4", ls=":", label="no tags (dead reckoning)")
+    for kind, pts in (bounds or {}).items():
+        pts = sorted(p for p in pts if np.isfinite(p[1]))
+        if pts:
+            n, m = (np.array(v) for v in zip(*pts))
+            ax.plot(n, m, color=TRUTH_COLOR, ls=_BOUND_STYLES[kind], marker=".", label=f"bound ({kind})")
     for name, pts in points.items():
         pts = sorted(p for p in pts if np.isfinite(p[1]))
         if not pts:
@@ -323,3 +329,51 @@ def cost_accuracy(points: dict[str, list[tuple[float, float, float]]], path: Pat
     _label_axes(ax, "number of tags", "RMS position error in tunnel [m]", title)
     return _save(fig, path)
 
+
+
+#: Line styles of the position bounds (drawn in the truth's colour: they are of the drive, not of an estimator).
+_BOUND_STYLES = {"smoother": "--", "filtering": ":"}
+
+
+def bound_vs_time(drive: Drive, estimates: list[Estimate], bound, path: Path) -> Path:
+    """The position bound along the drive (sqrt(trace) of the smoother and filtering bounds,
+    :class:`graphpos.bound.Bound`) beside each estimator's Euclidean position error, on a log axis (the
+    bound is centimetres where the errors are metres), labelled windows shaded."""
+    fig, ax = plt.subplots(figsize=(11, 4))
+    t0 = _time_origin(drive)
+    _shade_windows(ax, drive, t0)
+    for est in estimates:
+        s = error_series(drive, est)
+        err = np.where(s["error_m"] > 0, s["error_m"], np.nan)  # a zero error has no place on a log axis
+        ax.plot(s["t_s"] - t0, err, lw=0.8, alpha=0.8, color=color_of(est.name), label=est.name)
+    for kind, style in _BOUND_STYLES.items():
+        ax.plot(bound.t_s - t0, bound.sqrt_trace(kind), color=TRUTH_COLOR, lw=1.6, ls=style,
+                label=f"bound ({kind}), sqrt trace")
+    ax.set_yscale("log")
+    _label_axes(ax, _time_label(t0), "position error / bound [m]",
+                f"{drive.name}: position error against the Cramer-Rao bound", ncol=2)
+    return _save(fig, path)
+
+
+def plan_bounds(curves: list, path: Path, kind: str, target_m: float | None, title: str, tunnel_length_m: float) -> Path:
+    """``plan-layout``'s figure: above, sqrt(trace) of the position bound along the tunnel for the chosen
+    layout (first of ``curves``, :class:`graphpos.plan.BoundEvaluation`) and its rivals, with the target
+    where it is a worst case (``target_m``); below, the chosen layout's tags on the two walls."""
+    from graphpos.sim.infrastructure import family_offsets
+
+    fig, (ax, walls) = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
+    palette = plt.get_cmap("tab10")
+    for i, ev in enumerate(curves):
+        role = "chosen" if i == 0 else f"rival {i}"
+        ax.plot(ev.distance_m, ev.sqrt_trace_m, lw=2.0 if i == 0 else 1.2, color=palette(i),
+                label=f"{role}: {ev.candidate.label} ({ev.n_tags} tags)")
+    if target_m is not None:
+        ax.axhline(target_m, color="0.3", ls="--", label=f"target {target_m:g} m")
+    ax.set_ylim(bottom=0)
+    _label_axes(ax, "", f"{kind} bound, sqrt trace [m]", title)
+    s, side = family_offsets(curves[0].candidate.tags(), tunnel_length_m)
+    walls.scatter(s, side, marker="s", color=palette(0), s=18)
+    walls.set_yticks([-1, 1], ["right wall", "left wall"])
+    walls.set_ylim(-1.8, 1.8)
+    walls.set_xlabel("distance from the entry portal [m]")
+    return _save(fig, path)

@@ -27,6 +27,13 @@ studies :data:`QUICK_DEGRADED` on one seed, the first :data:`QUICK_PLAZA_S`
 of Plaza and :data:`QUICK_MRCLAM_S` of the robots :data:`QUICK_MRCLAM_ROBOTS`;
 the report says so. ``only`` / ``--only`` picks experiments.
 
+Position bound (issue 18): every simulated table has a row per posterior
+Cramer-Rao bound (smoother, filtering; :mod:`eval.bounds`) on the same
+drives, and per profile each row's efficiency (its RMS over its matching
+bound's RMS); ``results.json`` holds them (``tables[key].bound`` and each
+row's ``efficiency``). A drive the bound cannot be computed on shows "—"
+and why.
+
 Real data: when the Plaza file is present, the estimators that can use its
 sensors (UWB ranges, wheel odometry, gyro; no accelerometers, no compass) run
 on it. The ranging is not calibrated on the evaluated drive's truth: Plaza1
@@ -54,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from eval import plots
+from eval.bounds import BOUND_LABELS, NO_BOUND, DriveBound, bound_kind, bounds_cell, drive_bounds
 from eval.evaluate import Outcome, add_failure_section, cell_error, result_record
 from eval.execution import Job, JobResult, SimSource, execute, load_drive, provenance
 from eval.experiments import (GRAPH_ESTIMATORS, LIU2016_BOUND_M, RANGES_ONLY_GRAPH, SONG2016_TABLE4, Experiment, Row,
@@ -285,13 +293,7 @@ def _run_info(results: list[JobResult]) -> tuple[str, str]:
 def _zones_table(exp: Experiment, res: dict[_RunKey, JobResult], sources: dict[str, list[SimSource]],
                  profiles: dict[str, str], channels: list[str]) -> tuple[list[str], list[list[str]], list[dict]]:
     """liu2016: 2DRMS per zone window, per profile."""
-    zones: list[str] = []
-    for row in exp.all_rows():
-        for p in profiles:
-            for s in sources[p]:
-                r = res.get((s, row.estimator, row.layout))
-                if r is not None and r.ok:
-                    zones += [w for w in r.metrics["windows"] if w.startswith("zone:") and w not in zones]
+    zones = _zones(exp, res, sources, profiles)
 
     def bound(zone: str) -> str:
         b = LIU2016_BOUND_M.get(zone[len("zone:"):])
@@ -313,6 +315,69 @@ def _zones_table(exp: Experiment, res: dict[_RunKey, JobResult], sources: dict[s
         records.append({"estimator": row.estimator, "sensors": sensors_of(row.estimator, channels),
                         "drms2_m": primary["drms2_m"], "errors": primary["errors"], "profiles": per_profile})
     return header, rows, records
+
+
+def _zones(exp: Experiment, res: dict[_RunKey, JobResult], sources: dict[str, list[SimSource]],
+           profiles: dict[str, str]) -> list[str]:
+    """The ``zone:*`` windows the runs of a table were scored in, in first-seen order."""
+    zones: list[str] = []
+    for row in exp.all_rows():
+        for p in profiles:
+            for s in sources[p]:
+                r = res.get((s, row.estimator, row.layout))
+                if r is not None and r.ok:
+                    zones += [w for w in r.metrics["windows"] if w.startswith("zone:") and w not in zones]
+    return zones
+
+
+def _bound_keys(exp: Experiment, sources: dict[str, list[SimSource]]) -> list[tuple[SimSource, str | None]]:
+    """The (drive, layout) bounds a table needs: each drive through its graph rows' layout and every row's."""
+    layouts = dict.fromkeys([exp.graph_layout] + [r.layout for r in exp.all_rows()])
+    return [(s, lay) for srcs in sources.values() for s in srcs for lay in layouts]
+
+
+def _efficiency_cell(values: list[float], kind: str, run: bool) -> str:
+    """Mean ± STD over seeds of the efficiency (RMS / bound) and the bound it is against."""
+    if not run:
+        return NOT_RUN
+    text = mean_spread(values)
+    return NO_BOUND if text == "–" else f"{text} ({kind})"
+
+
+def _add_bound(exp: Experiment, header: list[str], rows: list[list[str]], records: list[dict],
+               res: dict[_RunKey, JobResult], sources: dict[str, list[SimSource]], profiles: dict[str, str],
+               bounds: dict[tuple[SimSource, str | None], DriveBound], channels: list[str]) -> dict[str, Any]:
+    """The position bound in a table (:func:`_experiment_table` or :func:`_zones_table`), in place.
+
+    Per profile an efficiency column: each row's RMS in the table's window over its matching bound's RMS
+    (:func:`eval.bounds.bound_kind`; the bound of the row's own layout, the same seed), mean ± STD over
+    seeds, also in the row's record (``efficiency``). One row per bound kind through the graph rows'
+    layout, in the figures' columns: ``– / RMS`` in a max / RMS table, 2DRMS (2 x RMS) per zone in a
+    zones table. Returns the bounds' JSON record: per profile, per drive and layout, the bound's RMS in
+    the table's window, in the tunnel and in the zones, with its timing or why there is none.
+    """
+    header += [f"RMS / bound, {p}" for p in profiles]
+    for row, line, record in zip(exp.all_rows(), rows, records):
+        eff = {p: [bounds[(s, row.layout)].efficiency(row.estimator, window_stat(res[key], exp.window, "rms_m"), exp.window)
+                   for s in sources[p] if (key := (s, row.estimator, row.layout)) in res] for p in profiles}
+        kind = bound_kind(row.estimator)
+        line += [_efficiency_cell(eff[p], kind, bool(_results(res, sources[p], row))) for p in profiles]
+        record["efficiency"] = {p: {"bound_kind": kind, "window": exp.window, "values": v} for p, v in eff.items()}
+    zones = _zones(exp, res, sources, profiles) if exp.metric == "drms2_zones" else []
+    sensors = sensors_of(GRAPH_ESTIMATORS[0], channels)
+    bs = {p: [bounds[(s, exp.graph_layout)] for s in sources[p]] for p in profiles}
+    for kind, label in BOUND_LABELS.items():
+        if exp.metric == "drms2_zones":
+            cells = ([bounds_cell(bs[p], z, kind, scale=2.0, empty=NOT_RUN) for z in zones for p in profiles]
+                     + [bounds_cell(bs[p], WHOLE, kind, scale=2.0, empty=NOT_RUN) for p in profiles])
+            line = [label, sensors, *cells]
+        else:
+            line = [label, sensors, exp.graph_layout or "–", "–",
+                    *[bounds_cell(bs[p], exp.window, kind, prefix="– / ", empty=NOT_RUN) for p in profiles]]
+        rows.append(line + [""] * (len(header) - len(line)))
+    windows = list(dict.fromkeys([exp.window, "in_tunnel", *zones]))
+    return {p: [bounds[key].record(windows) | {"seed": key[0].seed}
+                for key in _bound_keys(exp, {p: sources[p]})] for p in profiles}
 
 
 #: Column titles of the figures graphpos.ranging.table1 returns (distance errors in m, RSS errors in 0-255 units).
@@ -399,6 +464,18 @@ HOW_TO_READ = (
     "available only after the drive) and graph-fixed-lag-smoothed (each epoch once the smoother's lag has "
     "passed: a few seconds late, online). The papers' filters are all causal.",
 )
+#: How to read the bound rows and efficiency columns (with ``bound``).
+BOUND_HOW_TO_READ = (
+    "Bound rows: the posterior Cramer-Rao bound on the position error on the same drives (graphpos.bound: "
+    "graph-batch's factor graph with the simulator's sensor noise levels, linearised at the truth, through the "
+    "graph rows' layout), the RMS of sqrt(trace) of its east/north covariance over the table's window, mean ± STD "
+    "over seeds (2DRMS: twice that). Smoother: from the whole drive, what graph-batch at best achieves; filtering: "
+    "from the data up to each epoch, what a causal estimator at best achieves. 'RMS / bound': each row's RMS over "
+    "its matching bound's RMS on the same drive (smoother for graph-batch and graph-fixed-lag-smoothed, filtering "
+    "for the causal estimators; the bound of the row's own layout), mean ± STD over seeds: 1 is the best the data "
+    "allow. The bound assumes white Gaussian sensor errors; the paper profile's are not, so there the bound is that "
+    "of a simpler problem."
+)
 
 
 def _select(exps: list[Experiment], only: list[str] | None) -> list[Experiment]:
@@ -417,13 +494,14 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
               workers: int | None = None, scheduler: str | None = None, progress: bool = True,
               profile: str = "both", only: list[str] | None = None, duration_s: float | None = None,
               mrclam: Path | None = None, degraded: bool = True, table1: bool = True,
-              real_data: bool = True) -> Outcome:
+              real_data: bool = True, bound: bool = True) -> Outcome:
     """Run every experiment and write the reproduction folder (see the module docstring).
 
     ``profile``: a key of :data:`PROFILE_CHOICES` (the simulator sensor profiles to run); ``only``:
     experiment keys (or key prefixes, ``song2016-table4``) to run; ``duration_s``: simulate only the
     first seconds of each drive (tests); ``degraded``, ``table1``, ``real_data``: run the late-data and
-    fault studies, song2016 Table 1 and the Plaza and MRCLAM sections.
+    fault studies, song2016 Table 1 and the Plaza and MRCLAM sections; ``bound``: the position bound's rows
+    and efficiency columns (:func:`_add_bound`).
     """
     from graphpos.errors import ConfigError
 
@@ -514,12 +592,16 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
         results = execute([runs.jobs[k] for k in keys], workers=workers, scheduler=scheduler, progress=progress,
                           desc="reproduce")
         res = dict(zip(keys, results))
+        bound_keys = list(dict.fromkeys(k for exp in exps for k in _bound_keys(exp, sources[exp.key]))) if bound else []
+        bounds = dict(zip(bound_keys, drive_bounds(bound_keys, workers=workers, scheduler=scheduler)))
 
         title = "graphpos reproduce — the papers' tables on simulated drives" + (" (quick)" if quick else "")
         report = Report(title)
         how = report.section("How to read this")
         for paragraph in HOW_TO_READ:
             how.text(paragraph)
+        if bound:
+            how.text(BOUND_HOW_TO_READ)
         how.text("Simulator sensor profiles (graphpos simulate --profile): "
                  + "; ".join(f"{p}: {PROFILE_TEXT.get(sim, sim)}, {seeds_of[p]} seed(s)"
                              for p, sim in profiles.items())
@@ -565,12 +647,13 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
                      + (f" {exp.note}" if exp.note else ""))
             make = _zones_table if exp.metric == "drms2_zones" else _experiment_table
             header, rows, record = make(exp, res, srcs, profiles, channels)
+            bound_record = _add_bound(exp, header, rows, record, res, srcs, profiles, bounds, channels) if bound else None
             sec.table(header, rows)
             tables[exp.key] = {"title": exp.title, "scenario": exp.scenario, "pattern": exp.pattern,
                                "window": exp.window, "seeds": [s.seed for s in srcs[primary]],
                                "profiles": {p: {"sim_profile": sim, "seeds": [s.seed for s in srcs[p]]}
                                             for p, sim in profiles.items()},
-                               "rows": record}
+                               "rows": record, "bound": bound_record}
             plot_key = (first, tuple((r.estimator, r.layout) for r in exp.all_rows()))
             if plot_key not in plotted:  # song2014 Tables 4 and 5/6 show the same runs in two windows
                 plotted.add(plot_key)

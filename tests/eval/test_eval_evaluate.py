@@ -31,12 +31,12 @@ def test_evaluate_writes_every_artefact(tmp_path, drive, test_estimators):
     for name in ("results.json", "report.md", "report.html"):
         assert (out / name).stat().st_size > 0
     sub = out / "straight"
-    for name in ("trajectories.png", "error_vs_time.png", "error_cdf.png", "speed_error.png",
+    for name in ("trajectories.png", "error_vs_time.png", "error_cdf.png", "speed_error.png", "bound_vs_time.png",
                  "noisy-truth.tum", "noisy-truth.kml", "noisy-truth.geojson", "noisy-truth.csv", "all_estimates.kml",
                  "truth.tum", "truth.csv", "estimates.mcap", "estimates_ros2/metadata.yaml"):
         assert (sub / name).stat().st_size > 0, name
     html = (out / "report.html").read_text()
-    assert html.count("data:image/png;base64,") == 4
+    assert html.count("data:image/png;base64,") == 5
     md = (out / "report.md").read_text()
     assert "Window: in the tunnel (in_tunnel)" in md and "straight/trajectories.png" in md
     res = json.loads((out / "results.json").read_text())
@@ -109,3 +109,45 @@ def test_windows_of_identical_bounds_share_one_table(tmp_path, make_drive, test_
     md = (tmp_path / "report.md").read_text()
     assert md.count("Window: ") == 3  # whole, in the tunnel (in_tunnel, zone:tunnel), zone a
     assert "Window: in the tunnel (in_tunnel, zone:tunnel)" in md
+
+
+def test_evaluate_reports_the_bound_and_efficiency(tmp_path):
+    """A short simulated drive: a bound row of each kind and an efficiency column in every window table,
+    the bound plot, and the figures in results.json."""
+    from graphpos.sim import simulate
+
+    drive = simulate("paper-straight", seed=0, duration_s=20.0)
+    evaluate([(drive, drive)], ["fusion-ekf", "graph-batch"], tmp_path, workers=1, progress=False, mcap=False)
+    md = (tmp_path / "report.md").read_text()
+    n_tables = md.count("Window: ")
+    assert n_tables >= 2 and md.count("| RMS / bound |") == n_tables
+    assert md.count("| bound (smoother) |") == md.count("| bound (filtering) |") == n_tables
+    assert "(smoother) |" in md and "(filtering) |" in md  # graph-batch against the smoother bound, the EKF the filtering one
+    assert (tmp_path / drive.name / "bound_vs_time.png").stat().st_size > 0
+    b = json.loads((tmp_path / "results.json").read_text())["drives"][0]["bound"]
+    assert b["reason"] is None and b["timing_s"]["total_s"] > 0 and b["keyframes"] > 10
+    assert b["bound_kind"] == {"fusion-ekf": "filtering", "graph-batch": "smoother"}
+    for window in ("whole", "in_tunnel"):
+        smoother, filtering = b["smoother_rms_m"][window], b["filtering_rms_m"][window]
+        assert 0 < smoother <= filtering * (1 + 1e-9)
+        for name in ("fusion-ekf", "graph-batch"):
+            assert b["efficiency"][name][window] > 0
+
+
+def test_a_bound_that_cannot_be_computed_is_a_dash_and_a_reason(tmp_path, drive, test_estimators, monkeypatch):
+    import graphpos.bound
+    from graphpos.errors import EstimationError
+
+    def refuse(drive, **_):
+        raise EstimationError("graph-batch never starts")
+
+    monkeypatch.setattr(graphpos.bound, "position_bound", refuse)  # forked workers inherit it
+    outcome = evaluate([(drive, drive)], ["noisy-truth"], tmp_path, workers=1, progress=False, mcap=False)
+    assert not outcome.failures
+    md = (tmp_path / "report.md").read_text()
+    assert "| bound (smoother) | — (EstimationError: graph-batch never starts) |" in md
+    assert "Position bound: — (EstimationError: graph-batch never starts)." in md
+    assert not (tmp_path / "straight" / "bound_vs_time.png").exists()
+    b = json.loads((tmp_path / "results.json").read_text())["drives"][0]["bound"]
+    assert b["reason"] == "EstimationError: graph-batch never starts"
+    assert b["smoother_rms_m"]["whole"] is None and b["efficiency"]["noisy-truth"]["whole"] is None

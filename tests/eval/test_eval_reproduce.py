@@ -47,6 +47,14 @@ def test_reproduce_tables_with_failures_in_cells(tmp_path, monkeypatch):
     assert row["profiles"]["paper"]["rms_m"] == row["rms_m"] and row["sensors"] == "RFID ranges only"
     assert set(res["profiles"]) == {"paper"}
     assert (tmp_path / "out" / "report.html").read_text().count("data:image/png") >= 2
+    # the position bound on the same drives: a row per kind, efficiency per profile, figures in results.json
+    assert "| bound (smoother) | RFID + IMU + wheel + compass + GNSS | dense | – | – / " in md
+    assert "| bound (filtering) |" in md and "RMS / bound, paper" in md and "(filtering) |" in md
+    bound = res["tables"]["t"]["bound"]["paper"]
+    assert [b["seed"] for b in bound] == [0, 1] and all(b["reason"] is None for b in bound)
+    assert all(0 < b["smoother_rms_m"]["in_tunnel"] <= b["filtering_rms_m"]["in_tunnel"] for b in bound)
+    eff = row["efficiency"]["paper"]
+    assert eff["bound_kind"] == "filtering" and len(eff["values"]) == 2 and all(v > 1 for v in eff["values"])
 
 
 def test_reproduce_both_profiles_and_real_data_failures(tmp_path, monkeypatch):
@@ -115,6 +123,12 @@ def test_layout_study_curve(tmp_path):
     assert res["n_tags"]["dense"] > res["n_tags"]["optimized"] > 0
     assert {c["layout"] for c in res["curve"]} >= {"dense", "optimized"}
     assert (tmp_path / "cost_accuracy.png").stat().st_size > 0
+    # the bound of each layout beside the errors (mean over seeds, in the tunnel)
+    for c in res["curve"]:
+        if c["layout"] is not None:
+            assert 0 < c["bound_smoother_m"] <= c["bound_filtering_m"] and c["bound_errors"] == [None]
+    md = (tmp_path / "report.md").read_text()
+    assert "| bound (smoother) [m] | bound (filtering) [m] |" in md
 
 
 @pytest.mark.slow
