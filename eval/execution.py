@@ -29,7 +29,7 @@ import os
 import time
 import traceback
 from concurrent.futures import Executor, ProcessPoolExecutor, as_completed
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
@@ -235,12 +235,13 @@ def _one_blas_thread() -> None:
 
 
 def execute(jobs: list[Job], workers: int | None = None, scheduler: str | None = None,
-            progress: bool = True, desc: str = "runs") -> list[JobResult]:
-    """Run every job; results in the order of ``jobs``."""
+            progress: bool = True, desc: str = "runs", pool: Executor | None = None) -> list[JobResult]:
+    """Run every job; results in the order of ``jobs``. ``pool``: an open :func:`executor` to run
+    them on (a command that executes many small batches keeps one), else one made for these jobs."""
     if not jobs:
         return []
     results: list[JobResult | None] = [None] * len(jobs)
-    with executor(workers, scheduler) as pool:
+    with (nullcontext(pool) if pool is not None else executor(workers, scheduler)) as pool:
         futures = {pool.submit(run_job, job): i for i, job in enumerate(jobs)}
         bar = tqdm(total=len(jobs), desc=desc, unit="run", disable=not progress, leave=False)
         for fut in as_completed(futures):

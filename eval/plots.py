@@ -355,22 +355,26 @@ def bound_vs_time(drive: Drive, estimates: list[Estimate], bound, path: Path) ->
     return _save(fig, path)
 
 
-def plan_bounds(curves: list, path: Path, kind: str, target_m: float | None, title: str, tunnel_length_m: float) -> Path:
+def plan_bounds(curves: list, simulated_m: list[float], path: Path, kind: str, target_m: float | None, title: str,
+                tunnel_length_m: float) -> Path:
     """``plan-layout``'s figure: above, sqrt(trace) of the position bound along the tunnel for the chosen
-    layout (first of ``curves``, :class:`graphpos.plan.BoundEvaluation`) and its rivals, with the target
-    where it is a worst case (``target_m``); below, the chosen layout's tags on the two walls."""
+    layout (first of ``curves``, :class:`graphpos.plan.BoundEvaluation`) and its rivals, each layout's
+    simulated error in the tunnel (``simulated_m``, dashed, same colour) and the target; below, the chosen
+    layout's tags on the two walls."""
     from graphpos.sim.infrastructure import family_offsets
 
     fig, (ax, walls) = plt.subplots(2, 1, figsize=(11, 5.5), sharex=True, gridspec_kw={"height_ratios": [3, 1]})
     palette = plt.get_cmap("tab10")
-    for i, ev in enumerate(curves):
+    for i, (ev, sim) in enumerate(zip(curves, simulated_m)):
         role = "chosen" if i == 0 else f"rival {i}"
         ax.plot(ev.distance_m, ev.sqrt_trace_m, lw=2.0 if i == 0 else 1.2, color=palette(i),
-                label=f"{role}: {ev.candidate.label} ({ev.n_tags} tags)")
+                label=f"{role}: {ev.candidate.label} ({ev.n_tags} tags), bound")
+        if np.isfinite(sim):
+            ax.axhline(sim, color=palette(i), ls="--", lw=1.0, label=f"{role}: simulated, {sim:.2f} m")
     if target_m is not None:
-        ax.axhline(target_m, color="0.3", ls="--", label=f"target {target_m:g} m")
+        ax.axhline(target_m, color="0.2", ls=":", lw=1.5, label=f"target {target_m:g} m")
     ax.set_ylim(bottom=0)
-    _label_axes(ax, "", f"{kind} bound, sqrt trace [m]", title)
+    _label_axes(ax, "", "position error / bound [m]", title)
     s, side = family_offsets(curves[0].candidate.tags(), tunnel_length_m)
     walls.scatter(s, side, marker="s", color=palette(0), s=18)
     walls.set_yticks([-1, 1], ["right wall", "left wall"])

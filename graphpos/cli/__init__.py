@@ -32,6 +32,7 @@ _COMMAND_MODULES = (
     "graphpos.cli.estimators",
     "graphpos.cli.calibrate",
     "graphpos.cli.evaluation",
+    "graphpos.cli.plan",
     "graphpos.cli.faults",
     "graphpos.cli.live",
 )

@@ -17,6 +17,21 @@ Layouts (named subsets of one drive's tags):
 
 ``group`` in the tag map is the index of a tag's ``optimized`` group (-1 for
 a tag outside every group).
+
+A planned layout (``graphpos plan-layout``, issue 18) replaces these: with
+``tags.family`` set, the tunnel holds exactly that family's tags (the
+``planned`` layout, also ``dense``), placed by :func:`family_offsets`:
+
+- ``pairs``: both walls at the same positions every ``family_spacing_m``;
+- ``staggered``: each wall every ``family_spacing_m``, the right wall's
+  tags half a spacing after the left's;
+- ``one-wall``: the left wall only, every ``family_spacing_m``;
+- ``groups``: groups of ``family_group_tags`` pairs ``family_group_pitch_m``
+  apart, a group starting every ``family_spacing_m`` (song2016 §5.1's
+  optimized layout is groups of 2 pairs 6 m apart every 30 m).
+
+Positions start at each tunnel's entry portal; a tag (or group) that would
+lie past the tunnel's end is not placed.
 """
 
 from __future__ import annotations
@@ -26,7 +41,11 @@ from typing import Any
 import numpy as np
 
 from graphpos.drive import RsuMap, TagMap
+from graphpos.errors import ConfigError
 from graphpos.sim.route import Route
+
+#: Layout families a planned layout may take (``tags.family``).
+FAMILIES = ("pairs", "staggered", "one-wall", "groups")
 
 #: Group spacings (m) of the layout-study layouts ``groups-<N>m``.
 STUDY_GROUP_SPACINGS_M = (60, 90, 120)
@@ -34,12 +53,64 @@ STUDY_GROUP_SPACINGS_M = (60, 90, 120)
 _EPS = 1e-6
 
 
+def family_offsets(tags: dict[str, Any], length_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets from a tunnel's entry (m) and wall sides (+1 left, -1 right) of a planned layout.
+
+    Parameters
+    ----------
+    tags : dict
+        The ``tags`` parameters (``family``, ``family_spacing_m``,
+        ``family_group_tags``, ``family_group_pitch_m``).
+    length_m : float
+        The tunnel's centreline length.
+    """
+    family, every = tags["family"], float(tags["family_spacing_m"])
+    starts = np.arange(0.0, length_m + _EPS, every)
+    if family == "pairs":
+        return np.repeat(starts, 2), np.tile([1, -1], starts.size)
+    if family == "one-wall":
+        return starts, np.ones(starts.size, dtype=np.int64)
+    if family == "staggered":
+        right = starts[starts + every / 2 <= length_m + _EPS] + every / 2
+        offsets = np.concatenate([starts, right])
+        side = np.concatenate([np.ones(starts.size, dtype=np.int64), -np.ones(right.size, dtype=np.int64)])
+        order = np.argsort(offsets, kind="stable")
+        return offsets[order], side[order]
+    if family == "groups":
+        span_m = (int(tags["family_group_tags"]) - 1) * float(tags["family_group_pitch_m"])
+        starts = starts[starts + span_m <= length_m + _EPS]
+        within = np.arange(int(tags["family_group_tags"])) * float(tags["family_group_pitch_m"])
+        pairs = (starts[:, None] + within[None, :]).ravel()
+        return np.repeat(pairs, 2), np.tile([1, -1], pairs.size)
+    raise ConfigError(f"unknown tags.family '{family}' (known: {', '.join(FAMILIES)})")
+
+
+def _planned_tags(route: Route, tags: dict[str, Any], spans: list[tuple[float, float]]) -> TagMap:
+    """The tag map of a planned layout (``tags.family`` set): its tags are every layout."""
+    s_parts, side_parts = [], []
+    for t0, t1 in spans:
+        offsets, side = family_offsets(tags, t1 - t0)
+        s_parts.append(t0 + offsets)
+        side_parts.append(side)
+    s, side = np.concatenate(s_parts), np.concatenate(side_parts).astype(np.int64)
+    east, north = np.empty(s.size), np.empty(s.size)
+    for sd in (+1, -1):
+        m = side == sd
+        if m.any():
+            east[m], north[m] = route.wall_points(s[m], sd)
+    ids = np.arange(1, s.size + 1, dtype=np.int64)
+    return TagMap(ids, east, north, side, np.full(s.size, -1, dtype=np.int64), {"dense": ids, "planned": ids})
+
+
 def place_tags(route: Route, tags: dict[str, Any]) -> TagMap:
-    """Tag map with the ``dense``, ``optimized`` and ``groups-<N>m`` layouts."""
+    """Tag map with the ``dense``, ``optimized`` and ``groups-<N>m`` layouts,
+    or a planned layout's tags when ``tags.family`` is set."""
     spacing, group_len = tags["spacing_m"], tags["group_length_m"]
     spans = route.spans(zone="tunnel")
     if not spans:
         return no_tags()
+    if tags.get("family"):
+        return _planned_tags(route, tags, spans)
     s_parts, side_parts, span_parts, off_parts = [], [], [], []
     for k, (t0, t1) in enumerate(spans):
         offsets = np.repeat(np.arange(0.0, t1 - t0 + _EPS, spacing), 2)

@@ -173,6 +173,15 @@ _COMMON: dict[str, Any] = {
         "spacing_m": 6.0,
         "group_spacing_m": 30.0,
         "group_length_m": 6.0,
+        # A planned layout (graphpos plan-layout) instead of the papers':
+        # family "" keeps the papers' layouts; else one of pairs, staggered,
+        # one-wall, groups (graphpos.sim.infrastructure) with its spacing
+        # (between tags on a wall, or between group starts), and for groups
+        # the pairs per group and their pitch.
+        "family": "",
+        "family_spacing_m": 30.0,
+        "family_group_tags": 2,
+        "family_group_pitch_m": 6.0,
     },
 }
 
@@ -218,6 +227,9 @@ _SCENARIO_PARAMS: dict[str, dict[str, Any]] = {
             "tunnel_straight_m": 60.0,
             "tunnel_curve_m": 60.0,
             "curve_radius_m": 50.0,
+            # straight tunnel after the curve (0: the curve ends at the exit
+            # portal); graphpos plan-layout places a curve with it
+            "tunnel_straight_after_m": 0.0,
             "approach_after_m": 18.0,
             "width_m": 6.0,
             "lane_width_m": 3.0,
@@ -630,12 +642,29 @@ def check_params(params: dict[str, Any]) -> None:
             raise ConfigError(f"parameter '{section}.{lo}' must not exceed {section}.{hi}")
     if "tags" in params and params["tags"]["group_spacing_m"] < params["tags"]["group_length_m"]:
         raise ConfigError("parameter 'tags.group_spacing_m' must be at least tags.group_length_m")
+    if "tags" in params and params["tags"]["family"]:
+        _check_family(params["tags"])
     if "rfid" in params:
         r = params["rfid"]
         for lo, hi in (("range_scale_min", "range_scale_max"), ("range_outlier_min_m", "range_outlier_max_m"),
                        ("reader_gain_min_db", "reader_gain_max_db")):
             if r[lo] > r[hi]:
                 raise ConfigError(f"parameter 'rfid.{lo}' must not exceed rfid.{hi}")
+
+
+def _check_family(tags: dict[str, Any]) -> None:
+    """A planned layout's parameters: a known family, positive spacings, a group that fits its spacing."""
+    from graphpos.sim.infrastructure import FAMILIES
+
+    if tags["family"] not in FAMILIES:
+        raise ConfigError(f"unknown tags.family '{tags['family']}' (known: {', '.join(FAMILIES)}, or \"\" for the papers' layouts)")
+    if not tags["family_spacing_m"] > 0:
+        raise ConfigError(f"parameter 'tags.family_spacing_m' must be positive, got {tags['family_spacing_m']!r}")
+    if tags["family"] == "groups":
+        if tags["family_group_tags"] < 1 or not tags["family_group_pitch_m"] > 0:
+            raise ConfigError("parameters 'tags.family_group_tags' and 'tags.family_group_pitch_m' must be positive")
+        if (tags["family_group_tags"] - 1) * tags["family_group_pitch_m"] >= tags["family_spacing_m"]:
+            raise ConfigError("a group of tags.family_group_tags pairs tags.family_group_pitch_m apart must be shorter than tags.family_spacing_m")
 
 
 def to_toml(params: dict[str, Any]) -> str:

@@ -98,6 +98,7 @@ def build_route(scenario: str, route: dict[str, Any]) -> Route:
             Segment(route["approach_before_m"], 0.0, "approach"),
             Segment(route["tunnel_straight_m"], 0.0, "tunnel"),
             Segment(curve_m, curvature, "tunnel"),
+            Segment(route.get("tunnel_straight_after_m", 0.0), 0.0, "tunnel"),
             Segment(route["approach_after_m"], 0.0, "approach"),
         ]
     if segments[0].length_m <= 0 or segments[-1].length_m <= 0:

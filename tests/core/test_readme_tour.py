@@ -113,3 +113,12 @@ def test_the_real_data_block_says_where_the_data_comes_from(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("graphpos import plaza: error: ../shared/data/plaza/Plaza1.mat: no such file")
     assert "github.com/borglab/gtsam" in lines[0] and "examples/Data/Plaza1_.mat" in lines[0]
     assert not os.listdir(folder / "work")
+
+
+@pytest.mark.slow
+def test_the_planning_block_runs_on_a_fresh_clone(tmp_path, monkeypatch):
+    folder, env = clone(tmp_path)
+    monkeypatch.setenv("HOME", env["HOME"])
+    run_tour(sh_block("## Planning a tag layout"), folder, env, monkeypatch)
+    for name in ("plan/layout.toml", "plan/plan.png", "plan/report.html", "planned.mcap", "planned/results.json"):
+        assert (folder / "work" / name).exists(), name
