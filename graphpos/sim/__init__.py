@@ -59,8 +59,20 @@ one pass go out and back (:mod:`graphpos.sim.trajectory`), so windows repeat
 per pass.
 """
 
-from graphpos.sim.params import default_params, load_config
-from graphpos.sim.scenarios import SCENARIOS, Scenario
-from graphpos.sim.simulate import simulate
+import importlib
 
 __all__ = ["SCENARIOS", "Scenario", "simulate", "load_config", "default_params"]
+
+#: Where each public name lives. They are imported on first use (PEP 562), so
+#: that a command importing one light sub-module (``graphpos.sim.faults`` for
+#: its names in ``--help``) does not pay for the simulator and scipy.signal.
+_HOMES = {"SCENARIOS": "scenarios", "Scenario": "scenarios", "simulate": "simulate",
+          "load_config": "params", "default_params": "params"}
+
+
+def __getattr__(name: str):
+    if name not in _HOMES:
+        raise AttributeError(f"module 'graphpos.sim' has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"graphpos.sim.{_HOMES[name]}"), name)
+    globals()[name] = value
+    return value
