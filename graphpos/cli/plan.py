@@ -20,7 +20,7 @@ def register(sub) -> None:
     p.add_argument("--curve-start-m", type=float, default=0.0, help="where the curve starts, from the entry portal")
     p.add_argument("--profile", choices=("ideal", "paper"), default="ideal",
                    help="simulator sensor profile of the drives (default ideal: the papers' sensors, white noise)")
-    goal = p.add_mutually_exclusive_group(required=True)
+    goal = p.add_mutually_exclusive_group()  # neither: plan_layout says so in one line
     goal.add_argument("--target-m", type=float, help="target position error in the tunnel, metres")
     goal.add_argument("--budget", type=int, help="tag budget: the best layout with at most this many tags")
     p.add_argument("--metric", choices=("rms", "max"), default="rms", help="target metric: RMS (default) or worst case")
@@ -29,7 +29,7 @@ def register(sub) -> None:
     p.add_argument("--seeds", type=int, default=2, help="simulated drives per layout in the search (seeds 0.., default 2)")
     p.add_argument("--fresh-seeds", type=int, default=6,
                    help="fresh drives (seeds 100..) the chosen layout must meet the target on too (default 6)")
-    add_output_option(p, "DIR", OUTPUT_FOLDER_HELP, "--output")
+    add_output_option(p, "DIR", OUTPUT_FOLDER_HELP)
     p.add_argument("--workers", type=int, default=None, help="local worker processes for the simulations (default: all cores)")
     p.add_argument("--no-progress", action="store_true", help="no progress lines")
     p.set_defaults(func=_plan_layout)

@@ -19,7 +19,7 @@ from graphpos.cli import build_parser, main
 READ_ONLY = {"scenarios", "info", "estimators", "ranging table1", "ranging check", "ranging show", "replay"}
 #: The older spelling each writing command still takes (``--output`` unless named here; None: a command
 #: newer than the old spellings).
-OLD_SPELLING = {"run": "--out-dir", "live": None}
+OLD_SPELLING = {"run": "--out-dir", "live": None, "plan-layout": None}
 
 
 def leaf_commands() -> dict[str, argparse.ArgumentParser]:

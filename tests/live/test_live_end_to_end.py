@@ -83,7 +83,7 @@ def test_replayed_drive_gives_the_offline_output_and_reaches_foxglove(drive_path
         np.testing.assert_array_equal(got.t_s, offline.t_s)
         assert np.max(np.abs(got.position - offline.position)) <= 1e-9
         if offline.cov_en_m2 is not None:
-            np.testing.assert_allclose(got.cov_en_m2, offline.cov_en_m2, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(got.cov_en_m2, offline.cov_en_m2, rtol=0, atol=1e-9)  # as the positions: 2e-12 m² seen between processes
         # the Foxglove client saw the estimates as published: JSON rows, a LocationFix and a pose each
         seen = client.messages.get(f"/estimates/{name}", [])
         assert len(seen) >= 0.9 * len(offline), f"{name}: {len(seen)} of {len(offline)} estimates reached the client"

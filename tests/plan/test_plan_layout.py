@@ -117,6 +117,7 @@ def test_plan_with_a_budget_writes_a_layout_that_simulate_accepts(tmp_path):
 
 @pytest.mark.parametrize("argv, needle", [
     (["--length-m", "120", "--target-m", "0.5", "--budget", "4"], "not allowed with"),
+    (["--length-m", "120"], "give either a target"),
     (["--length-m", "120", "--target-m", "-1"], "target must be a positive"),
     (["--length-m", "0", "--target-m", "1"], "length m must be positive"),
     (["--length-m", "120", "--budget", "5", "-e", "no-such"], "no-such"),
