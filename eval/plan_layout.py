@@ -95,11 +95,6 @@ class PlanOutcome:
     folder: Path
     chosen: Candidate | None
     met: bool
-    results: list = field(default_factory=list)
-
-    @property
-    def failures(self) -> list:
-        return []
 
 
 class _Simulator:
@@ -233,7 +228,7 @@ def plan_layout(spec: TunnelSpec, folder: Path, target_m: float | None = None, b
         shown = ([chosen] if chosen is not None else []) + rivals
         for c in shown:
             search.evaluate(c)
-        sims = sim.run(shown)
+        sim.run(shown)
         if chosen is not None:
             fresh.run([chosen])
         met = chosen is not None and (target_m is None or confirmed(chosen))
@@ -241,7 +236,7 @@ def plan_layout(spec: TunnelSpec, folder: Path, target_m: float | None = None, b
         _write(out, spec, search, sim, fresh, frontiers, chosen, rivals, target_m, budget, metric, estimator, kind, seeds,
                met, t_bound, took)
         say(f"done in {took:.0f} s: " + (f"{chosen.label}, {chosen.n_tags(spec)} tags" if chosen is not None else "no layout found"))
-    return PlanOutcome(folder, chosen, met, sims)
+    return PlanOutcome(folder, chosen, met)
 
 
 def _layout_toml(spec: TunnelSpec, chosen: Candidate) -> str:

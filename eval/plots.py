@@ -330,7 +330,6 @@ def cost_accuracy(points: dict[str, list[tuple[float, float, float]]], path: Pat
     return _save(fig, path)
 
 
-
 #: Line styles of the position bounds (drawn in the truth's colour: they are of the drive, not of an estimator).
 _BOUND_STYLES = {"smoother": "--", "filtering": ":"}
 

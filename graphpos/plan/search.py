@@ -17,6 +17,7 @@ the budget is evaluated and the families are ranked by their bound.
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from concurrent.futures import Executor
 from dataclasses import dataclass, field
@@ -86,8 +87,6 @@ class BoundSearch:
         """The bound of one layout (cached)."""
         if candidate in self.cache:
             return self.cache[candidate]
-        import time
-
         from graphpos.sim import simulate
 
         started = time.perf_counter()
