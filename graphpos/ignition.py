@@ -202,18 +202,35 @@ _POSITION_STARTS = 6
 
 
 def between_walls(position_en_m: np.ndarray, tags_en_m: np.ndarray, wall_side: np.ndarray) -> bool:
-    """False when a position lies behind a wall: outside the band between the nearest left-wall and right-wall tags.
+    """False when a position lies behind a wall: a mirror image of the track across it.
 
+    Each wall is the line through its two tags nearest the position (the
+    wall's local direction, whatever the other wall's tags do: pairs,
+    staggered, groups); the road is on the side of it where the other
+    wall's nearest tag is. A position on the far side by more than a quarter
+    of that tag's distance from the line (a quarter of the width) is behind
+    the wall. A wall with one tag is the line through it square to the
+    other wall's nearest tag. The lines run on past the walls' ends, so a
+    position on the approach road before the first tags is on the road.
     A map without tags on both walls says nothing (True).
     """
-    left, right = tags_en_m[wall_side > 0], tags_en_m[wall_side < 0]
+    p = np.asarray(position_en_m, dtype=float)
+    tags = np.asarray(tags_en_m, dtype=float).reshape(-1, 2)
+    left, right = tags[wall_side > 0], tags[wall_side < 0]
     if not (left.size and right.size):
         return True
-    a = left[np.argmin(np.hypot(*(left - position_en_m).T))]
-    b = right[np.argmin(np.hypot(*(right - position_en_m).T))]
-    ab = b - a
-    u = float(np.dot(position_en_m - a, ab) / max(float(np.dot(ab, ab)), 1e-9))
-    return -0.25 <= u <= 1.25
+    for wall, other in ((left, right), (right, left)):
+        a = wall[np.argsort(np.hypot(*(wall - p).T))[:2]]
+        road = other[np.argmin(np.hypot(*(other - p).T))]
+        along = a[1] - a[0] if len(a) == 2 else np.zeros(2)
+        if not np.hypot(*along) > 1e-9:
+            across = road - a[0]
+            along = np.array([-across[1], across[0]])
+        normal = np.array([-along[1], along[0]]) / max(float(np.hypot(*along)), 1e-12)
+        road_side = float(np.dot(road - a[0], normal))
+        if float(np.dot(p - a[0], normal)) * math.copysign(1.0, road_side) < -0.25 * abs(road_side):
+            return False
+    return True
 
 
 def _can_determine(ranges: np.ndarray, fixes: np.ndarray, heading_from_compass: bool, free_heading: bool) -> bool:

@@ -270,7 +270,9 @@ class GraphBuilder:
 
     # -- time grid ----------------------------------------------------------
     def keyframe_time(self, k: int) -> float:
-        seg = next((s for s in reversed(self.segments) if s.first <= k), self.segments[0])
+        seg = self.segments[-1]  # nearly always: the current track's keyframes are asked for
+        if seg.first > k:
+            seg = next((s for s in reversed(self.segments) if s.first <= k), self.segments[0])
         return seg.t_s + (k - seg.first) * self.period_s
 
     def _keyframe_at(self, t_s: float) -> tuple[Segment, int] | None:
@@ -316,6 +318,8 @@ class GraphBuilder:
         hold, or the drive has ``ended``), only the keyframes up to the last
         sample are closed: none is extrapolated past the odometry.
         """
+        if self.keyframe_time(self.last_keyframe + 1) >= until_s - 1e-9:
+            return []  # most measurements: the next keyframe is still ahead
         last_s = min(self._last_sample_s.values())
         hold_s = self.max_gap_s if not ended and until_s - last_s <= self.max_gap_s else 0.5 * self.period_s
         covered_s = last_s + hold_s + 1e-9
@@ -368,7 +372,8 @@ class GraphBuilder:
             raw = self.standstill.yaw_rate(m.t_s, v["yaw_rate_radps"])
             yaw_rate = (raw - self.corrections.gyro_bias_radps) / self.corrections.yaw_rate_scale
             self.odometry.set_yaw_rate(yaw_rate)
-            self._gyro_radps = np.array([0.0, 0.0, yaw_rate])
+            if self._preintegrating:
+                self._gyro_radps = np.array([0.0, 0.0, yaw_rate])
             if self.tracking and not self.anchored:
                 self._ignite(self.ignition.yaw_rate(m.t_s, yaw_rate))
         if self._preintegrating and all([self._finite(m, "accel_x_mps2"), self._finite(m, "accel_y_mps2")]):

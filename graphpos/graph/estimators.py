@@ -388,7 +388,8 @@ class GraphBatch(_GraphEstimator):
         return {"max_delay_s": math.inf}
 
     def process(self, measurement: Measurement) -> list[OutputRow]:
-        return self._apply(self.builder.add(measurement._replace(arrival_s=measurement.t_s)))
+        m = measurement if measurement.arrival_s == measurement.t_s else measurement._replace(arrival_s=measurement.t_s)
+        return self._apply(self.builder.add(m))
 
     def run(self, drive: Drive) -> Estimate:
         """One solve with a given profile; else self-calibration (``config.self_calibrate``): two.

@@ -186,6 +186,20 @@ def test_between_walls(position, expected):
     assert between_walls(np.array(position), tags, side) is expected
 
 
+@pytest.mark.parametrize("position, expected", [
+    ((-150.0, 0.0), True),  # on the approach road, 150 m before the first tag
+    ((40.0, 1.0), True),  # on the road between a left tag and a right tag 81 m on
+    ((40.0, 8.0), False),  # the mirror of (40, 1) across the left wall
+    ((120.0, -8.0), False),  # the mirror of (120, -1) across the right wall
+    ((300.0, 2.0), True),  # past the last tags
+])
+def test_between_walls_with_staggered_sparse_tags(position, expected):
+    """Staggered tags 163 m apart per wall: the nearest left and right tags are 81 m apart along the road,
+    so the band between them says nothing about the sides; each wall's own line does."""
+    tags = np.array([[0.0, 4.5], [81.8, -4.5], [163.6, 4.5], [245.4, -4.5]])
+    assert between_walls(np.array(position), tags, np.array([1, -1, 1, -1])) is expected
+
+
 def test_between_walls_says_nothing_without_both_walls():
     tags, side = wall_tags(walls=(+1,))
     assert between_walls(np.array([10.0, 6.0]), tags, side)
