@@ -1,12 +1,14 @@
-"""MCAP write/read time of a 60-minute drive (issue 2: each under 30 s).
+"""MCAP write/read time of a 60-minute drive (issue 2: each under 30 s), and
+the time of the CSV export of its truth (issue 19).
 
 Simulates a drive with ``graphpos.sim.simulate`` (scenario ``long-tunnel``
 by default) or, with ``--synthetic`` or while the simulator cannot make
 one, builds a drive with the same channel rates (imu, wheel and truth at
 100 Hz, compass 10 Hz, rfid 1-5 readings per second) from seeded noise.
 Prints message count, write and read seconds (wall and CPU: the machine is
-shared), file size and the process's
-peak memory, and checks the read drive equals the written one.
+shared), file size, the CPU seconds of the truth's CSV text
+(:func:`graphpos.io.exports.csv_text`) and the process's peak memory, and
+checks the read drive equals the written one.
 
     python benchmarks/mcap_io.py [--duration 3600] [--scenario long-tunnel] [--synthetic]
 """
@@ -24,6 +26,7 @@ from mcap.reader import make_reader
 
 from graphpos.drive import Channel, Drive, TagMap, Window
 from graphpos.io import read_drive, write_drive
+from graphpos.io.exports import csv_text, truth_estimate
 
 
 def synthetic_drive(duration_s: float, seed: int = 0) -> Drive:
@@ -111,9 +114,13 @@ def main() -> None:
             stats = make_reader(f).get_summary().statistics
         size_mb = path.stat().st_size / 1e6
     same = all(back.channels[k] == ch for k, ch in drive.channels.items()) and back.tags == drive.tags
+    c0 = time.process_time()
+    csv_text(truth_estimate(drive))
+    csv_cpu_s = time.process_time() - c0
     print(f"messages: {stats.message_count} ({stats.chunk_count} chunks)")
     print(f"write: {write_s:.1f} s (CPU {write_cpu_s:.1f} s)   read: {read_s:.1f} s (CPU {read_cpu_s:.1f} s)   "
           f"file: {size_mb:.1f} MB   lossless: {same}")
+    print(f"truth CSV: CPU {csv_cpu_s:.1f} s ({len(drive.truth)} rows)")
     print(f"peak memory of the process: {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3:.0f} MB")
 
 

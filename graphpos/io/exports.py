@@ -22,8 +22,6 @@ rename), so a crash never leaves a truncated export that looks whole.
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import os
 from pathlib import Path
@@ -34,7 +32,7 @@ from graphpos.colors import color_of, kml_color_of
 from graphpos.drive import Drive, GeoOrigin
 from graphpos.estimate import CSV_COLUMNS, Estimate
 from graphpos.io.geo import enu_to_geodetic
-from graphpos.io.mcap_drive import write_drive
+from graphpos.io.mcap_drive import float_texts, write_drive
 from graphpos.io.outputs import atomic_output, safe_name
 from graphpos.io.ros2_bag import write_odometry_bag
 
@@ -98,15 +96,11 @@ def kml_text(estimates: list[Estimate], origin: GeoOrigin) -> str:
 
 
 def csv_text(estimate: Estimate) -> str:
-    """The estimate as CSV with :data:`CSV_COLUMNS` (empty cells where not estimated)."""
+    """The estimate as CSV with :data:`CSV_COLUMNS` (empty cells where not
+    estimated or not finite), each value in Python's shortest round-trip repr."""
     table = estimate.table()
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(CSV_COLUMNS)
-    cols = [table[c] for c in CSV_COLUMNS]
-    for row in zip(*cols):
-        writer.writerow(["" if not np.isfinite(v) else repr(float(v)) for v in row])
-    return buf.getvalue()
+    cells = [float_texts(table[c], nan="", inf="", minus_inf="") for c in CSV_COLUMNS]
+    return "\n".join([",".join(CSV_COLUMNS), *map(",".join, zip(*cells))]) + "\n"
 
 
 def export_estimate(estimate: Estimate, origin: GeoOrigin, folder: str | os.PathLike, stem: str | None = None) -> dict[str, Path]:

@@ -64,6 +64,7 @@ _MESSAGE_HEADER = np.dtype([("op", "u1"), ("len", "<u8"), ("cid", "<u2"), ("seq"
 _MESSAGE_RECORD = struct.Struct("<BQHIQQ")  # the same fields, one message at a time
 _RECORD_HEADER = struct.Struct("<BQ")
 _MESSAGE_CHANNEL = struct.Struct("<H")
+_MESSAGE_START = struct.Struct("<BQH")  # a record header and, in a message, its channel id
 #: Start of the header's library string of ``graphpos live`` recordings:
 #: the only files read without a footer (:func:`read_mcap_contents`).
 LIVE_LIBRARY = "graphpos live"
@@ -313,20 +314,23 @@ class McapContents:
         """Walk the records of a chunk's content (mostly messages)."""
         pos, end = 0, len(data)
         unpack = _RECORD_HEADER.unpack_from
-        channel_of = _MESSAGE_CHANNEL.unpack_from
+        unpack_message = _MESSAGE_START.unpack_from
+        message = int(Opcode.MESSAGE)
         payloads = self.payloads
         while pos < end:
-            if pos + 9 > end:
+            if pos + 11 <= end:  # the channel id is read with the header: it counts only for a message
+                opcode, length, cid = unpack_message(data, pos)
+            elif pos + 9 <= end:
+                opcode, length = unpack(data, pos)
+            else:
                 raise _Corrupt("a record header is cut off")
-            opcode, length = unpack(data, pos)
             start = pos + 9
             pos = start + length
             if pos > end:
                 raise _Corrupt(f"a record (opcode {opcode:#x}) runs past the end of the chunk")
-            if opcode == Opcode.MESSAGE:
+            if opcode == message:
                 if length < 22:
                     raise _Corrupt("a message record is too short")
-                (cid,) = channel_of(data, start)
                 bucket = payloads.get(cid)
                 if bucket is None:
                     bucket = payloads[cid] = []
