@@ -13,8 +13,10 @@ Two stages:
    confirmed on fresh seeds (100, 101, ...): there the one-sided 90 % upper
    confidence limit of the mean must meet the target (a sparse layout's
    error varies a lot between drives; its mean over two can meet a target
-   its mean over ten misses); if it does not, the cheapest denser layout
-   that does is bisected for. Its two nearest cheaper rivals are simulated
+   its mean over ten misses); if it does not, the next denser layout that
+   meets on the search's seeds is confirmed in turn (bisected for on the
+   search's seeds, whose runs are mostly done: one fresh confirmation per
+   layout tried, not one per bisection step). Its two nearest cheaper rivals are simulated
    too, and a rival that also passes takes the choice over, until both
    rivals of the chosen layout fail. Chosen layout and rivals are reported
    with both figures.
@@ -207,10 +209,14 @@ def plan_layout(spec: TunnelSpec, folder: Path, target_m: float | None = None, b
             def confirmed(c: Candidate) -> bool:  # fresh seeds only for a layout that meets on the search's
                 return sim.meets(c, target_m) and fresh.meets(c, target_m, confident=True)
 
-            chosen = _bisect_by_simulation(ordered, lambda c: sim.meets(c, target_m))
-            if chosen is not None and not fresh.meets(chosen, target_m, confident=True):
-                # it met on the search's seeds, not on fresh ones: the cheapest denser layout that meets on both
-                chosen = _bisect_by_simulation([c for c in ordered if c.n_tags(spec) > chosen.n_tags(spec)], confirmed)
+            def on_search_seeds(c: Candidate) -> bool:
+                return sim.meets(c, target_m)
+
+            chosen = _bisect_by_simulation(ordered, on_search_seeds)
+            while chosen is not None and not fresh.meets(chosen, target_m, confident=True):
+                # it met on the search's seeds, not on fresh ones: the next denser layout that meets on the
+                # search's seeds (their runs are cached) is confirmed in turn
+                chosen = _bisect_by_simulation([c for c in ordered if c.n_tags(spec) > chosen.n_tags(spec)], on_search_seeds)
             rivals = ordered[-2:][::-1]
             while chosen is not None:
                 # a cheaper rival that meets the target too (simulated errors are noisy) takes the choice over
