@@ -14,6 +14,7 @@ Prints, as ratios to real time:
 
     python benchmarks/graph.py [--scenario paper-straight] [--short 600] [--long 3600]
                                [--parameterisation auto|planar|inertial] [--skip-long]
+    python benchmarks/graph.py --replay-only [--scenario paper-straight] [--short 600]
     python benchmarks/graph.py --late-figure late.png [--seed 0]
     python benchmarks/graph.py --accuracy [--seeds 12]
 
@@ -35,6 +36,42 @@ issue 13); the errors are computed against the full drive afterwards.
 Wall time suffers from other work on a shared machine; the CPU time of this
 process (``time.process_time``) is printed beside it, and the long/short
 cost ratio uses CPU time.
+
+After the short-drive lines (alone with ``--replay-only``), each graph
+estimator's CPU is compared with a GTSAM-only replay of the same work
+(issue 19; target: ``graph-batch`` and ``graph-isam2`` at most 1.6x), by
+:mod:`gtsam_replay` (in this directory):
+
+- the estimator is run once under a recorder that copies the inputs of
+  every GTSAM solving call it makes: iSAM2 and fixed-lag updates (the
+  forced relinearisations and range rebuilds included), the
+  ``calculateEstimate*`` / ``calculateBestEstimate`` reads, marginal
+  covariances, Levenberg-Marquardt solves (``optimise``) and batch
+  ``Marginals``;
+- then, twice: the estimator is run unrecorded (``run`` on the drive
+  without its truth, as a user would; graph-batch's self-calibration
+  included) and its CPU time taken, and the recorded calls are redone in
+  the same order on fresh GTSAM objects and their CPU time taken. Each
+  replay must reproduce the recorded results to 1e-9 (the final LM values,
+  every iSAM2 estimate read, every covariance), and each unrecorded run the
+  recorded run's output, else the benchmark stops: a wrong replay cannot
+  print a flattering ratio.
+
+The ratio is estimator CPU / replay CPU, from a run and a replay made one
+after the other: 1.0 would mean no cost outside GTSAM. The replay excludes
+everything but the GTSAM calls: building factors and graphs, preintegration,
+reading the drive, output rows, the profile fitting of self-calibration
+(the pybind conversion of each call's arguments and results is in both).
+Both ratios are printed; on a shared machine their spread shows the noise.
+``--replay-only`` first runs each estimator on a 30 s drive to warm up
+(imports, caches).
+Below each, the recorded run's CPU is split into ``GraphBuilder.add`` and
+``flush`` (per-measurement Python), ``GraphBuilder.graph`` (whole-graph
+rebuilds for the batch solves), the GTSAM calls as timed inside the
+estimator, and the rest; the recorder's own copying is shown apart. Its
+"run less copies / its GTSAM" is a cross-check of the ratio from within a
+single run (immune to the machine's speed changing between runs, but its
+GTSAM calls run with caches the Python between them has disturbed).
 
 "p95 update" is the 95th percentile of the wall time of one keyframe's
 smoother update plus reading its estimate; "per keyframe" is the whole
@@ -96,6 +133,38 @@ def timed_run(name: str, drive, config: GraphConfig, sample_rss: bool = False) -
         "rss_mb": rss,
         "cpu_per_sixth_s": np.diff(cpu_marks).tolist(),
     }
+
+
+#: The graph estimators compared with their GTSAM-only replay (issue 19).
+REPLAYED = ("graph-batch", "graph-isam2", "graph-fixed-lag")
+
+
+def replay_figures(drive, config: GraphConfig, repeats: int = 2) -> None:
+    """Print each graph estimator's CPU against a GTSAM-only replay of its calls (see the module docstring)."""
+    from gtsam_replay import Recorder
+
+    blind = drive.without_truth()
+    print(f"CPU against a GTSAM-only replay of the same calls, {drive.duration_s:.0f} s drive (issue 19 target: graph-batch, graph-isam2 <= 1.6x):")
+    for name in REPLAYED:
+        with Recorder() as rec:
+            recorded = ESTIMATORS[name](config).run(blind)
+        figures = []
+        for _ in range(repeats):
+            c0 = time.process_time()
+            est = ESTIMATORS[name](config).run(blind)
+            cpu_s = time.process_time() - c0
+            for col in ("t_s", "east_m", "north_m", "yaw_rad", "cov_en_m2"):
+                a, b = getattr(est, col, None), getattr(recorded, col, None)
+                if (a is None) != (b is None) or (a is not None and not np.array_equal(a, b, equal_nan=True)):
+                    raise AssertionError(f"{name}: the recorded run's {col} differs from the unrecorded run's")
+            replay = rec.replay()
+            replay.check()
+            figures.append((cpu_s, replay.cpu_s))
+            del replay
+        counts = rec.counts()
+        print(f"  {name:16s} " + "; ".join(f"CPU {c:6.2f} s, replay {r:6.2f} s: {c / r:.2f}x" for c, r in figures))
+        print(f"  {'':16s} calls: " + ", ".join(f"{n} {k}" for k, n in counts.items()) + "; replay reproduced every result to 1e-9")
+        print(f"  {'':16s} recorded run: {rec.split.describe()}")
 
 
 def late_figure(path: str, seed: int) -> None:
@@ -163,6 +232,7 @@ def main() -> None:
     ap.add_argument("--long", type=float, default=3600.0, help="long drive, s (default 3600)")
     ap.add_argument("--parameterisation", default="auto", choices=("auto", "planar", "inertial"))
     ap.add_argument("--skip-long", action="store_true")
+    ap.add_argument("--replay-only", action="store_true", help="only the CPU against a GTSAM-only replay of each graph estimator's calls")
     ap.add_argument("--late-figure", metavar="PNG", help="plot the late-reading comparison instead")
     ap.add_argument("--accuracy", action="store_true", help="compare with the song2016 filters instead")
     ap.add_argument("--seeds", type=int, default=12, help="--accuracy: drives per scenario (default 12; one drive's RMS varies 3x between seeds)")
@@ -177,6 +247,12 @@ def main() -> None:
 
     short = simulate(args.scenario, seed=args.seed, duration_s=args.short)
     print(f"{args.scenario} seed {args.seed}: {short.duration_s:.0f} s drive, IMU {len(short.imu)} samples")
+    if args.replay_only:
+        warm = simulate(args.scenario, seed=args.seed, duration_s=30.0).without_truth()
+        for name in REPLAYED:  # imports and caches, outside the figures
+            ESTIMATORS[name](config).run(warm)
+        replay_figures(short, config)
+        return
     results = {}
     for name in ("graph-isam2", "graph-batch", "graph-fixed-lag"):
         r = timed_run(name, short, config)
@@ -186,6 +262,7 @@ def main() -> None:
             f"(CPU {r['cpu_s']:.2f} s = {r['realtime_cpu_x']:.1f}x), "
             f"{r['per_keyframe_ms']:.2f} ms/keyframe, update mean {r['update_mean_ms']:.2f} ms, p95 {r['update_p95_ms']:.2f} ms"
         )
+    replay_figures(short, config)
     if args.skip_long:
         return
     long = simulate(args.scenario, seed=args.seed, duration_s=args.long)
