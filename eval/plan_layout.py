@@ -56,7 +56,7 @@ from eval.report import Report, fmt, write_json
 from graphpos.errors import ConfigError
 from graphpos.io.exports import write_atomically
 from graphpos.io.outputs import output_folder
-from graphpos.plan import BASE_SCENARIO, PATTERN, BoundEvaluation, BoundSearch, Candidate, TunnelSpec, family_grid
+from graphpos.plan import BASE_SCENARIO, BoundEvaluation, BoundSearch, Candidate, TunnelSpec, family_grid
 from graphpos.plan.search import WINDOW
 
 #: First of the fresh seeds the chosen layout is confirmed on (the search uses seeds 0, 1, ...).
@@ -107,7 +107,7 @@ class _Simulator:
         self.cache: dict[Candidate, Simulated] = {}
 
     def source(self, c: Candidate, seed: int) -> SimSource:
-        return SimSource(BASE_SCENARIO, PATTERN, seed, overrides_json=json.dumps({**self.spec.overrides(), "tags": c.tags()}))
+        return SimSource(BASE_SCENARIO, self.spec.pattern, seed, overrides_json=json.dumps({**self.spec.overrides(), "tags": c.tags()}))
 
     def run(self, candidates: list[Candidate]) -> list[Simulated]:
         todo = [c for c in dict.fromkeys(candidates) if c not in self.cache]
@@ -249,7 +249,7 @@ def _layout_toml(spec: TunnelSpec, chosen: Candidate) -> str:
     from graphpos.sim.params import to_toml
 
     head = (f"# graphpos plan-layout: {chosen.label}, {chosen.n_tags(spec)} tags, for a tunnel {spec.describe()}.\n"
-            f"# Simulate a drive with it:  graphpos simulate {BASE_SCENARIO} --pattern {PATTERN} --config layout.toml\n"
+            f"# Simulate a drive with it:  graphpos simulate {BASE_SCENARIO} --pattern {spec.pattern} --config layout.toml\n"
             "# tags.family_spacing_m is between tags on one wall (between group starts for groups), "
             "measured from the entry portal.\n\n")
     return head + to_toml({**spec.overrides(), "tags": chosen.tags()})

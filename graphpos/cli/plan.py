@@ -20,6 +20,13 @@ def register(sub) -> None:
     p.add_argument("--curve-start-m", type=float, default=0.0, help="where the curve starts, from the entry portal")
     p.add_argument("--profile", choices=("ideal", "paper"), default="ideal",
                    help="simulator sensor profile of the drives (default ideal: the papers' sensors, white noise)")
+    p.add_argument("--sensors", default=None,
+                   help="sensors the vehicle carries, comma-separated, among imu, wheel, compass, rfid, rsu, gnss "
+                        "(default: the papers', imu,wheel,compass,rfid,gnss; gnss is the DGPS fixes on the approach)")
+    p.add_argument("--reader-range-m", type=float, default=None, help="RFID reader range, at most 9 m (default: the papers' reader, 9 m)")
+    p.add_argument("--pattern", default=None,
+                   help="speed profile of the drives: a motion pattern of paper-comprehensive (default constant; "
+                        "`graphpos scenarios` lists them)")
     goal = p.add_mutually_exclusive_group()  # neither: plan_layout says so in one line
     goal.add_argument("--target-m", type=float, help="target position error in the tunnel, metres")
     goal.add_argument("--budget", type=int, help="tag budget: the best layout with at most this many tags")
@@ -42,8 +49,9 @@ def _plan_layout(args) -> int:
 
     started = time.perf_counter()
     check_output_folder(args.output)
+    given = {"sensors": args.sensors, "reader_range_m": args.reader_range_m, "pattern": args.pattern}
     spec = TunnelSpec(args.length_m, args.width_m, args.speed_kmh / 3.6, args.curve_radius_m, args.curve_length_m,
-                      args.curve_start_m, args.profile)
+                      args.curve_start_m, args.profile, **{k: v for k, v in given.items() if v is not None})
     outcome = plan_layout(spec, args.output, target_m=args.target_m, budget=args.budget, metric=args.metric,
                           estimator=args.estimator, seeds=args.seeds, fresh_seeds=args.fresh_seeds, workers=args.workers, progress=not args.no_progress)
     took = time.perf_counter() - started

@@ -26,7 +26,7 @@ import numpy as np
 
 from graphpos.bound import position_bound
 from graphpos.errors import ConfigError, GraphposError
-from graphpos.plan.tunnel import BASE_SCENARIO, PATTERN, Candidate, TunnelSpec, family_grid
+from graphpos.plan.tunnel import BASE_SCENARIO, Candidate, TunnelSpec, family_grid
 from graphpos.sim.infrastructure import FAMILIES
 
 #: The window a plan is scored in.
@@ -92,7 +92,7 @@ class BoundSearch:
         started = time.perf_counter()
         n = candidate.n_tags(self.spec)
         try:
-            drive = simulate(BASE_SCENARIO, pattern=PATTERN, seed=0,
+            drive = simulate(BASE_SCENARIO, pattern=self.spec.pattern, seed=0,
                              overrides={**self.spec.overrides(), "tags": candidate.tags()})
             bound = position_bound(drive, filtering=self.kind == "filtering")
             inside = bound.mask(WINDOW)

@@ -27,6 +27,8 @@ PATTERN = "constant"
 #: Seconds of approach before the portal: the 5 s of DGPS-grade fixes the
 #: estimators start from (graphpos.sim.params, gnss_approach) and 2 s more.
 APPROACH_S = 7.0
+#: The papers' sensors: RFID, IMU, wheel, compass, and DGPS-grade fixes on the approach.
+PAPERS_SENSORS = "imu,wheel,compass,rfid,gnss"
 #: Pitch (m) of the pairs within a group (song2016 §5.1: 6 m).
 GROUP_PITCH_M = 6.0
 #: Closest spacing (m) searched between tags on a wall (song2016's dense layout: 6 m; half of it).
@@ -51,6 +53,17 @@ class TunnelSpec:
         Arc length of the curve and where it starts, measured from the entry portal.
     profile : str
         Simulator sensor profile of the drives (``ideal`` or ``paper``).
+    sensors : str
+        The sensors the vehicle carries, comma-separated (simulator parameter
+        ``sensors``: ``graphpos.sim.params.SENSORS``); the papers': RFID,
+        IMU, wheel, compass and the DGPS fixes on the approach (``gnss``).
+    reader_range_m : float
+        Range of the RFID reader (simulator parameter ``rfid.reader_range_m``,
+        at most the RSS law's 9 m).
+    pattern : str
+        Motion pattern of the drives: the speed profile (``constant``;
+        ``accel``, ``decel`` and the others of :data:`BASE_SCENARIO`, at
+        speeds about ``speed_mps``).
     """
 
     length_m: float
@@ -60,8 +73,22 @@ class TunnelSpec:
     curve_length_m: float = 0.0
     curve_start_m: float = 0.0
     profile: str = "ideal"
+    sensors: str = PAPERS_SENSORS
+    reader_range_m: float = 9.0
+    pattern: str = PATTERN
 
     def __post_init__(self) -> None:
+        from graphpos.sim import SCENARIOS
+        from graphpos.sim.params import sensor_set
+
+        sensor_set({"sensors": self.sensors})
+        if "rfid" not in sensor_set({"sensors": self.sensors}):
+            raise ConfigError("plan-layout: the sensors must include rfid (the tags are what is planned)")
+        if not (math.isfinite(self.reader_range_m) and 0 < self.reader_range_m <= 9.0):
+            raise ConfigError(f"plan-layout: the reader range must be in (0, 9] m (the RSS law's reach), got {self.reader_range_m!r}")
+        patterns = SCENARIOS[BASE_SCENARIO].patterns
+        if self.pattern not in patterns:
+            raise ConfigError(f"plan-layout: unknown motion pattern '{self.pattern}' (known: {', '.join(patterns)})")
         for name in ("length_m", "width_m", "speed_mps"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
@@ -91,13 +118,16 @@ class TunnelSpec:
         }
         motion = {"speed_mps": self.speed_mps, "speed_low_mps": 0.6 * self.speed_mps,
                   "speed_high_mps": 1.4 * self.speed_mps}
-        return {"profile": self.profile, "route": route, "motion": motion}
+        return {"profile": self.profile, "sensors": self.sensors, "rfid": {"reader_range_m": self.reader_range_m},
+                "route": route, "motion": motion}
 
     def describe(self) -> str:
         curve = (f", a {self.curve_length_m:g} m curve of radius {self.curve_radius_m:g} m from {self.curve_start_m:g} m"
                  if self.curve_radius_m is not None else ", straight")
+        motion = "" if self.pattern == PATTERN else f" ({self.pattern} pattern)"
         return (f"{self.length_m:g} m long, {self.width_m:g} m wide{curve}, at {self.speed_mps:.3g} m/s "
-                f"({self.speed_mps * 3.6:.0f} km/h), {self.profile} sensor profile")
+                f"({self.speed_mps * 3.6:.0f} km/h){motion}, {self.profile} sensor profile, sensors {self.sensors}, "
+                f"reader range {self.reader_range_m:g} m")
 
 
 @dataclass(frozen=True)

@@ -66,6 +66,10 @@ _COMMON: dict[str, Any] = {
     "profile": "ideal",
     # song2016 §6.1 / song2014 §5.1: the RSS law of the tunnel environment.
     "rss_environment": "tunnel",
+    # The sensors the vehicle carries, comma-separated (SENSORS): the drive
+    # has only their channels. The others are simulated all the same and
+    # dropped, so a drive's remaining channels do not depend on this choice.
+    "sensors": "imu,wheel,compass,rfid,rsu,gnss",
     "motion": {
         # Turnaround on the approach road when a drive is longer than one pass
         # (ours): a right-left-right "bulb" U-turn of this radius and speed.
@@ -133,6 +137,11 @@ _COMMON: dict[str, Any] = {
         # song2016 §6: 1 Hz; heard up to 9 m, reliable within 6 m (the range
         # limits are those of the RSS environment, graphpos.sim.rss).
         "rate_hz": 1.0,
+        # Reader range (ours): tags farther than this are not heard, for a
+        # reader less sensitive than song2016's (at most the RSS
+        # environment's range, 9 m: the RSS law and the range models are
+        # calibrated to it).
+        "reader_range_m": 9.0,
         # Per-reading miss probability within the reliable range (ours);
         # beyond it detection falls linearly to zero at the maximum range.
         "read_failure_probability": 0.05,
@@ -593,12 +602,29 @@ _BOUNDS: dict[str, tuple[float, float]] = {
 MAX_ROUTE_M = 50_000.0
 
 
+#: The sensors a simulated vehicle may carry (parameter ``sensors``): the channels they give.
+SENSORS = ("imu", "wheel", "compass", "rfid", "rsu", "gnss")
+
+
+def sensor_set(params: dict[str, Any]) -> tuple[str, ...]:
+    """The channels of parameter ``sensors``, checked: known names, at least one."""
+    names = tuple(n.strip() for n in str(params["sensors"]).split(",") if n.strip())
+    unknown = [n for n in names if n not in SENSORS]
+    if unknown or not names:
+        raise ConfigError(f"parameter 'sensors' must list sensors among {', '.join(SENSORS)} (comma-separated), got {params['sensors']!r}")
+    return names
+
+
 def check_params(params: dict[str, Any]) -> None:
     """Reject impossible or unbuildable values with a message naming the parameter."""
     _check_profile(params["profile"])
     env = params["rss_environment"]
     if env not in ENVIRONMENTS:
         raise ConfigError(f"unknown rss_environment '{env}' (known: {', '.join(ENVIRONMENTS)})")
+    sensor_set(params)
+    if "rfid" in params and not 0 < params["rfid"]["reader_range_m"] <= ENVIRONMENTS[env].max_range_m:
+        raise ConfigError(f"parameter 'rfid.reader_range_m' must be in (0, {ENVIRONMENTS[env].max_range_m:g}] m "
+                          f"(the {env} RSS law and its range models reach that far), got {params['rfid']['reader_range_m']}")
 
     def walk(section: dict[str, Any], where: str) -> None:
         for key, value in section.items():

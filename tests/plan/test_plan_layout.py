@@ -61,6 +61,28 @@ def test_bad_tunnels_are_refused(kwargs):
         TunnelSpec(**kwargs)
 
 
+@pytest.mark.parametrize("kwargs, needle", [(dict(sensors="imu,wheel,compass"), "must include rfid"),
+                                            (dict(sensors="imu,lidar,rfid"), "lidar"), (dict(reader_range_m=12.0), "reader range"),
+                                            (dict(reader_range_m=0.0), "reader range"), (dict(pattern="zigzag"), "zigzag")])
+def test_bad_sensor_sets_reader_ranges_and_patterns_are_refused(kwargs, needle):
+    with pytest.raises(ConfigError, match=needle):
+        TunnelSpec(120.0, 6.0, 2.0, **kwargs)
+
+
+def test_sensor_set_reader_range_and_pattern_reach_the_drives_and_the_bound():
+    """Issue 18 item 3's inputs: the drives carry only the chosen sensors, hear tags only within the reader's
+    range, move in the chosen pattern; the bound follows (no compass: a weaker heading, a larger bound)."""
+    short = TunnelSpec(120.0, 6.0, 2.0, sensors="imu,wheel,rfid,gnss", reader_range_m=5.0, pattern="accel")
+    c = Candidate("pairs", 12.0, 2)
+    drive = simulate(BASE_SCENARIO, pattern=short.pattern, seed=0, overrides={**short.overrides(), "tags": c.tags()})
+    assert sorted(drive.channels) == ["gnss", "imu", "rfid", "truth", "wheel"]
+    assert 4.0 < drive.rfid.true_range_m.max() <= 5.0
+    assert drive.params["pattern"] == "accel"
+    full = BoundSearch(PAPER_TUNNEL, kind="smoother", metric="rms").evaluate(c).value_m
+    no_compass = BoundSearch(TunnelSpec(120.0, 6.0, 2.0, sensors="imu,wheel,rfid,gnss"), kind="smoother", metric="rms").evaluate(c).value_m
+    assert no_compass > 1.2 * full
+
+
 class _FakeSearch(BoundSearch):
     """A bound that grows with the spacing (no drive simulated)."""
 
@@ -97,7 +119,7 @@ def test_simulation_bisection_finds_the_cheapest_that_meets():
 
 
 def test_plan_with_a_budget_writes_a_layout_that_simulate_accepts(tmp_path):
-    spec = TunnelSpec(length_m=40.0, width_m=6.0, speed_mps=4.0)
+    spec = TunnelSpec(length_m=40.0, width_m=6.0, speed_mps=4.0, sensors="imu,wheel,compass,rfid", reader_range_m=7.0)
     out = plan_layout(spec, tmp_path / "plan", budget=6, seeds=1, fresh_seeds=1, workers=1, progress=False)
     assert out.chosen is not None and out.chosen.n_tags(spec) <= 6
     folder = tmp_path / "plan"
@@ -106,6 +128,7 @@ def test_plan_with_a_budget_writes_a_layout_that_simulate_accepts(tmp_path):
     config = tomllib.loads((folder / "layout.toml").read_text())
     drive = simulate(BASE_SCENARIO, pattern=PATTERN, seed=1, overrides=config)
     assert len(drive.tags) == out.chosen.n_tags(spec)
+    assert "gnss" not in drive.channels and drive.rfid.true_range_m.max() <= 7.0  # the plan's sensors and reader, in the file
     report = (folder / "report.md").read_text()
     assert "bound" in report and out.chosen.label in report
     import json
@@ -121,6 +144,9 @@ def test_plan_with_a_budget_writes_a_layout_that_simulate_accepts(tmp_path):
     (["--length-m", "120", "--target-m", "-1"], "target must be a positive"),
     (["--length-m", "0", "--target-m", "1"], "length m must be positive"),
     (["--length-m", "120", "--budget", "5", "-e", "no-such"], "no-such"),
+    (["--length-m", "120", "--budget", "5", "--sensors", "imu,sonar,rfid"], "sonar"),
+    (["--length-m", "120", "--budget", "5", "--reader-range-m", "20"], "reader range"),
+    (["--length-m", "120", "--budget", "5", "--pattern", "zigzag"], "zigzag"),
 ])
 def test_cli_refuses_bad_input_in_one_line(tmp_path, argv, needle):
     p = subprocess.run([sys.executable, "-m", "graphpos", "plan-layout", *argv, "-o", str(tmp_path / "o")],
