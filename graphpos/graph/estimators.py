@@ -415,6 +415,7 @@ class GraphBatch(_GraphEstimator):
         if not first.builder.started or not first.builder.odometry_records:
             return first_estimate.with_wall_time(time.perf_counter() - t0)
         profile = fit_profile(first.builder, first.values, first.config, drive.name)
+        del first  # its graph and values go before the second solve builds its own
         if profile is None:  # too short a drive, or no motion, to calibrate on: one plain solve
             plain = GraphBatch(dataclasses.replace(c, self_calibrate=False), self.layout, self.range_model, self.initial_pose)
             est = plain.run(drive)
@@ -470,6 +471,7 @@ class GraphBatch(_GraphEstimator):
             initial = self.smoother.estimate()
         except RuntimeError as exc:
             raise gtsam_error(exc, f"{self.name}: initial estimate") from None
+        self.smoother = None  # the seeding pass's Bayes tree is done with: its memory goes before the batch solves
         what = f"{self.name} on '{self._drive_name}'"
         fit_wheel = self.config.wheel_scale == "estimate" and self.builder.odometry_records and self.builder.odometry.has_speed
         if self._estimates_range_scale() and self.builder.range_records:
