@@ -11,9 +11,9 @@ Efficiency is an estimator's RMS position error over a window divided by
 the RMS of the matching bound over the same window (:func:`efficiency`):
 1 is the best the information allows, above 1 is what the estimator leaves.
 The matching bound (:func:`bound_kind`) is the smoother bound for the
-estimators that use later data (:data:`SMOOTHED_ESTIMATORS`: graph-batch and
-graph-fixed-lag-smoothed, see :data:`eval.experiments.GRAPH_ESTIMATORS`),
-and the filtering bound for the causal ones (the filters, graph-isam2,
+estimators that use later data (:data:`SMOOTHED_ESTIMATORS`: graph-batch,
+graph-fixed-lag-smoothed and graph-ranges, which smooths its ranges over
+the whole drive), and the filtering bound for the causal ones (the filters, graph-isam2,
 graph-fixed-lag). graph-fixed-lag-smoothed sees only a few seconds of later
 data: the smoother bound is a valid but loose bound for it.
 """
@@ -34,7 +34,7 @@ from graphpos.drive import Drive
 #: The two bounds of :class:`graphpos.bound.Bound`.
 KINDS = ("smoother", "filtering")
 #: Estimators whose output uses data after its epoch: scored against the smoother bound.
-SMOOTHED_ESTIMATORS = frozenset({"graph-batch", "graph-fixed-lag-smoothed"})
+SMOOTHED_ESTIMATORS = frozenset({"graph-batch", "graph-fixed-lag-smoothed", "graph-ranges"})
 #: Row labels of the bounds in the report tables.
 BOUND_LABELS = {kind: f"bound ({kind})" for kind in KINDS}
 #: A table cell without a bound figure.
@@ -44,6 +44,16 @@ NO_BOUND = "—"
 def bound_kind(estimator: str) -> str:
     """The bound an estimator is scored against: ``"smoother"`` or ``"filtering"``."""
     return "smoother" if estimator in SMOOTHED_ESTIMATORS else "filtering"
+
+
+def bound_label(estimator: str) -> str:
+    """How an efficiency cell names the bound it is against: :func:`bound_kind`, and for an estimator on
+    RFID ranges only that the bound's sensors are more than its own (the bound is of the drive's
+    odometry, compass and ranges together; one of ranges alone would be higher, its efficiency lower)."""
+    from eval.names import RFID_ONLY, sensors_of
+
+    kind = bound_kind(estimator)
+    return f"{kind}, of more sensors" if sensors_of(estimator) == RFID_ONLY else kind
 
 
 @dataclass

@@ -39,7 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from eval import plots
-from eval.bounds import BOUND_LABELS, NO_BOUND, DriveBound, bound_kind, drive_bounds, result_efficiency
+from eval.bounds import BOUND_LABELS, NO_BOUND, DriveBound, bound_kind, bound_label, drive_bounds, result_efficiency
 from eval.execution import FileSource, Job, JobResult, describe_source, execute, failures, provenance
 from eval.metrics import WHOLE
 from eval.names import same_windows, window_name
@@ -145,7 +145,7 @@ def with_bound(header: list[str], rows: list[list[str]], results: list[JobResult
     for row in rows:
         r = by_name.get(row[0])
         eff = result_efficiency(r, bound, window) if r is not None else math.nan
-        out.append(row + [f"{fmt(eff)} ({bound_kind(row[0])})" if math.isfinite(eff) else NO_BOUND])
+        out.append(row + [f"{fmt(eff)} ({bound_label(row[0])})" if math.isfinite(eff) else NO_BOUND])
     column = header.index("RMS [m]") if bound.ok else 1
     for kind, label in BOUND_LABELS.items():
         line = [label] + [""] * len(header)

@@ -134,6 +134,15 @@ def test_evaluate_reports_the_bound_and_efficiency(tmp_path):
             assert b["efficiency"][name][window] > 0
 
 
+def test_rfid_only_rows_say_their_bound_is_of_more_sensors():
+    """The bound is of odometry, compass and ranges together: an estimator on ranges alone is marked so."""
+    from eval.bounds import bound_label
+
+    assert bound_label("rfid-ekf") == bound_label("multilateration") == "filtering, of more sensors"
+    assert bound_label("graph-ranges") == "smoother, of more sensors"  # it smooths its ranges over the whole drive
+    assert bound_label("fusion-ekf") == "filtering" and bound_label("graph-batch") == "smoother"
+
+
 def test_a_bound_that_cannot_be_computed_is_a_dash_and_a_reason(tmp_path, drive, test_estimators, monkeypatch):
     import graphpos.bound
     from graphpos.errors import EstimationError
