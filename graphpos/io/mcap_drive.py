@@ -92,6 +92,7 @@ marked ``"unclosed_recording": True`` (:func:`read_drive`).
 
 from __future__ import annotations
 
+import functools
 import json
 import json.scanner
 import os
@@ -716,12 +717,33 @@ def _decode_messages(payloads: list[bytes], where: str, first: int) -> list[dict
     return rows
 
 
+@functools.cache
+def _row_decoder(names: tuple[str, ...]) -> msgspec.json.Decoder:
+    """msgspec's decoder of a message whose fields ``names`` are each a number or null (others ignored)."""
+    fields = [(name, int | float | None | msgspec.UnsetType, msgspec.UNSET) for name in names]
+    return msgspec.json.Decoder(msgspec.defstruct("Row", fields))
+
+
+def _number_table(payloads: list[bytes], names: tuple[str, ...]) -> np.ndarray | None:
+    """The fields ``names`` of messages as a (messages, fields) float64 table, NaN for null; None unless
+    msgspec reads every message as an object with every one of the fields a number or null (then the
+    values are json's, :func:`_decode_messages`), and the caller decodes the batch message by message."""
+    decode, astuple = _row_decoder(names).decode, msgspec.structs.astuple
+    try:
+        table = np.array([astuple(decode(p)) for p in payloads], dtype=np.float64)
+    except (msgspec.DecodeError, TypeError, OverflowError):  # not JSON msgspec takes, a value not a number, an absent field
+        return None
+    return table.reshape(len(payloads), len(names))
+
+
 def _decode_columns(payloads: list[bytes], names: Sequence[str], where: str) -> tuple[dict[str, np.ndarray], set[str]]:
     """Float64 columns of the named fields (NaN where a message lacks one),
     and the names present in at least one message.
 
     Messages are decoded a batch (:data:`_BATCH_ROWS`) at a time, so that
-    only one batch of Python dicts is alive at once.
+    only one batch of Python objects is alive at once: straight into a
+    table where every message has every field as a number or null
+    (:func:`_number_table`), else as dicts whose fields are then checked.
 
     Raises
     ------
@@ -734,7 +756,14 @@ def _decode_columns(payloads: list[bytes], names: Sequence[str], where: str) -> 
     parts: dict[str, list[np.ndarray]] = {name: [] for name in names}
     present: set[str] = set()
     for first in range(0, len(payloads), _BATCH_ROWS):
-        rows = _decode_messages(payloads[first : first + _BATCH_ROWS], where, first)
+        batch = payloads[first : first + _BATCH_ROWS]
+        table = _number_table(batch, tuple(names)) if "cov_en_m2" not in names else None
+        if table is not None:
+            present.update(names)
+            for i, name in enumerate(names):
+                parts[name].append(table[:, i])
+            continue
+        rows = _decode_messages(batch, where, first)
         for name in names:
             if name not in present and any(name in row for row in rows):
                 present.add(name)
