@@ -77,7 +77,19 @@ def gtsam_error(exc: Exception, what: str) -> EstimationError:
 
 
 class Isam2Smoother:
-    """Full-history iSAM2."""
+    """Full-history iSAM2.
+
+    Its per-update cost grows with the length of the drive, whatever the
+    update re-eliminates: in GTSAM 4.3.0 (and 4.3.2.dev) each update's
+    re-eliminated top of the Bayes tree is built as a temporary BayesTree
+    whose orphans (the rest of the tree) hang below it, and its
+    non-recursive destructor walks every descendant. On a plain Pose2
+    chain (one key and two factors per update, 4 variables re-eliminated)
+    the time of 2000 updates grows from 0.18 s to 0.96 s between 2000 and
+    10 000 keys; ``perf`` puts 61 % of the time in ``~BayesTree``. On a
+    60-minute drive graph-isam2's last sixth costs 8.5 times its first.
+    :class:`FixedLagSmoother` keeps a bounded tree and a flat cost.
+    """
 
     def __init__(self, model_name: str):
         self.isam = gtsam.ISAM2(isam2_params(model_name))
