@@ -99,7 +99,6 @@ import os
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
-import msgspec
 import numpy as np
 from mcap.records import Channel as McapChannel
 
@@ -682,7 +681,6 @@ def write_drive(path: str | os.PathLike, drive: Drive, estimates: Iterable[Estim
 # ---------------------------------------------------------------------------
 
 _SCAN_JSON = json.scanner.make_scanner(json.JSONDecoder())
-_MSGSPEC_JSON = msgspec.json.Decoder()
 
 
 def _decode_messages(payloads: list[bytes], where: str, first: int) -> list[dict]:
@@ -693,8 +691,10 @@ def _decode_messages(payloads: list[bytes], where: str, first: int) -> list[dict
     # what it refuses (bad JSON, but also NaN and 1e999, which json reads as
     # NaN and inf, and lone surrogates) goes to json's scanner, then to
     # json.loads, which either accepts it or says what is wrong.
+    import msgspec  # on first read, not at import: 40 ms of every command's start-up
+
     scan = _SCAN_JSON
-    decode = _MSGSPEC_JSON.decode
+    decode = _row_decoder(None).decode
     rows = []
     append = rows.append
     for i, payload in enumerate(payloads, start=first):
@@ -718,8 +718,13 @@ def _decode_messages(payloads: list[bytes], where: str, first: int) -> list[dict
 
 
 @functools.cache
-def _row_decoder(names: tuple[str, ...]) -> msgspec.json.Decoder:
-    """msgspec's decoder of a message whose fields ``names`` are each a number or null (others ignored)."""
+def _row_decoder(names: tuple[str, ...] | None):
+    """msgspec's JSON decoder of a message whose fields ``names`` are each a number or null (others
+    ignored); of any JSON value for None."""
+    import msgspec
+
+    if names is None:
+        return msgspec.json.Decoder()
     fields = [(name, int | float | None | msgspec.UnsetType, msgspec.UNSET) for name in names]
     return msgspec.json.Decoder(msgspec.defstruct("Row", fields))
 
@@ -728,6 +733,8 @@ def _number_table(payloads: list[bytes], names: tuple[str, ...]) -> np.ndarray |
     """The fields ``names`` of messages as a (messages, fields) float64 table, NaN for null; None unless
     msgspec reads every message as an object with every one of the fields a number or null (then the
     values are json's, :func:`_decode_messages`), and the caller decodes the batch message by message."""
+    import msgspec
+
     decode, astuple = _row_decoder(names).decode, msgspec.structs.astuple
     try:
         table = np.array([astuple(decode(p)) for p in payloads], dtype=np.float64)
