@@ -25,7 +25,8 @@ class LiveProcess:
                                      env={**os.environ, "PYTHONUNBUFFERED": "1"})
         self.lines: queue.Queue[str] = queue.Queue()
         self.stderr: list[str] = []
-        threading.Thread(target=self._read, daemon=True).start()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
         self.listen = self.wait_for(r"listening on (\S+)").split(",")[0]
         self.foxglove = None
         if "--no-foxglove" not in args:
@@ -54,8 +55,12 @@ class LiveProcess:
 
     def result(self) -> tuple[int, dict]:
         """Wait for the exit; (status, the final status JSON it printed)."""
+        # stderr is the reader thread's: communicate() reading it too raced the thread for the lines,
+        # and closed the pipe under it (a ValueError in the thread)
+        stderr, self.proc.stderr = self.proc.stderr, None
         out, _ = self.proc.communicate(timeout=TIMEOUT_S)
-        time.sleep(0.1)
+        self._reader.join(timeout=TIMEOUT_S)
+        stderr.close()
         text = out.decode()
         return self.proc.returncode, (json.loads(text) if text.strip() else {})
 
