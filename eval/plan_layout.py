@@ -58,6 +58,7 @@ from graphpos.io.exports import write_atomically
 from graphpos.io.outputs import output_folder
 from graphpos.plan import BASE_SCENARIO, BoundEvaluation, BoundSearch, Candidate, TunnelSpec, family_grid
 from graphpos.plan.search import WINDOW
+from graphpos.sim.params import sensor_set
 
 #: First of the fresh seeds the chosen layout is confirmed on (the search uses seeds 0, 1, ...).
 FRESH_SEED = 100
@@ -190,7 +191,11 @@ def plan_layout(spec: TunnelSpec, folder: Path, target_m: float | None = None, b
         raise ConfigError(f"plan-layout: the tag budget must be at least 1, got {budget}")
     if seeds < 1 or fresh_seeds < 1:
         raise ConfigError(f"plan-layout: --seeds and --fresh-seeds must be at least 1, got {seeds} and {fresh_seeds}")
-    require_known([estimator])
+    classes = require_known(["graph-batch", estimator])
+    carried = set(sensor_set({"sensors": spec.sensors}))
+    for cls, what in ((classes["graph-batch"], "the bound (graph-batch's graph)"), (classes[estimator], estimator)):
+        if not (set(cls.required_channels) <= carried and all(carried & set(group) for group in cls.required_any)):
+            raise ConfigError(f"plan-layout: {what} needs {cls.needs()}; the vehicle's sensors are {spec.sensors}")
     kind = bound_kind(estimator)
 
     def say(line: str) -> None:

@@ -147,6 +147,8 @@ def test_plan_with_a_budget_writes_a_layout_that_simulate_accepts(tmp_path):
     (["--length-m", "120", "--budget", "5", "--sensors", "imu,sonar,rfid"], "sonar"),
     (["--length-m", "120", "--budget", "5", "--reader-range-m", "20"], "reader range"),
     (["--length-m", "120", "--budget", "5", "--pattern", "zigzag"], "zigzag"),
+    (["--length-m", "120", "--budget", "5", "--sensors", "rfid,gnss"], "the bound (graph-batch's graph) needs imu or wheel"),
+    (["--length-m", "120", "--budget", "5", "--sensors", "imu,rfid", "-e", "fusion-ekf"], "fusion-ekf needs"),
 ])
 def test_cli_refuses_bad_input_in_one_line(tmp_path, argv, needle):
     p = subprocess.run([sys.executable, "-m", "graphpos", "plan-layout", *argv, "-o", str(tmp_path / "o")],
