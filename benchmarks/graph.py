@@ -10,7 +10,10 @@ Prints, as ratios to real time:
   through the run (target: flat). The short-drive cost is the mean of a run
   before and a run after the long one. The CPU time of each sixth of the
   long drive is printed too: a flat cost shows as equal sixths, and a drift
-  of the machine's speed as a trend shared with the short runs.
+  of the machine's speed as a trend shared with the short runs. Then
+  (issue 19) ``graph-isam2``'s CPU per sixth of the long drive (target:
+  the last at most 1.5x the first) and ``graph-batch``'s peak resident
+  memory through ``run`` (target under 1 GB).
 
     python benchmarks/graph.py [--scenario paper-straight] [--short 600] [--long 3600]
                                [--parameterisation auto|planar|inertial] [--skip-long]
@@ -282,6 +285,32 @@ def main() -> None:
     print("  CPU per sixth of the drive (s): " + ", ".join(f"{x:.2f}" for x in r["cpu_per_sixth_s"]) + " (flat cost: equal sixths, up to the machine's own drift)")
     rss = r["rss_mb"]
     print("  RSS through the run (MB): " + ", ".join(f"{x:.0f}" for x in rss) + f"; growth after the first sixth {rss[-1] - rss[1]:+.0f} MB")
+    long_drive_figures(long, config)
+
+
+def long_drive_figures(drive, config: GraphConfig) -> None:
+    """Issue 19 item 4 on the long drive: graph-isam2's CPU per sixth (target: last <= 1.5x first) and
+    graph-batch's peak resident memory through ``run`` (target < 1 GB), sampled every 0.2 s."""
+    import threading
+
+    r = timed_run("graph-isam2", drive, config, sample_rss=True)
+    sixths = r["cpu_per_sixth_s"]
+    print(f"  graph-isam2: CPU {r['cpu_s']:.1f} s = {r['realtime_cpu_x']:.1f}x real time; per sixth (s): "
+          + ", ".join(f"{x:.2f}" for x in sixths) + f"; last / first {sixths[-1] / sixths[0]:.2f} (target <= 1.5)")
+    peak, done = [rss_mb()], threading.Event()
+
+    def sample() -> None:
+        while not done.wait(0.2):
+            peak[0] = max(peak[0], rss_mb())
+
+    sampler = threading.Thread(target=sample, daemon=True)
+    sampler.start()
+    c0 = time.process_time()
+    ESTIMATORS["graph-batch"](config).run(drive.without_truth())
+    done.set()
+    sampler.join()
+    print(f"  graph-batch: CPU {time.process_time() - c0:.1f} s, peak resident memory {max(peak[0], rss_mb()):.0f} MB "
+          "(the process's, drive included; target < 1000 MB)")
 
 
 if __name__ == "__main__":
