@@ -192,7 +192,7 @@ def plan_layout(spec: TunnelSpec, folder: Path, target_m: float | None = None, b
     if seeds < 1 or fresh_seeds < 1:
         raise ConfigError(f"plan-layout: --seeds and --fresh-seeds must be at least 1, got {seeds} and {fresh_seeds}")
     classes = require_known(["graph-batch", estimator])
-    carried = set(sensor_set({"sensors": spec.sensors}))
+    carried = set(sensor_set(spec.sensors))
     for cls, what in ((classes["graph-batch"], "the bound (graph-batch's graph)"), (classes[estimator], estimator)):
         if not (set(cls.required_channels) <= carried and all(carried & set(group) for group in cls.required_any)):
             raise ConfigError(f"plan-layout: {what} needs {cls.needs()}; the vehicle's sensors are {spec.sensors}")
@@ -211,11 +211,11 @@ def plan_layout(spec: TunnelSpec, folder: Path, target_m: float | None = None, b
             frontiers = search.frontiers(target_m, pool=pool)
             ordered = _feasible_by_bound(search, frontiers)
             t_bound = time.perf_counter() - started
-            def confirmed(c: Candidate) -> bool:  # fresh seeds only for a layout that meets on the search's
-                return sim.meets(c, target_m) and fresh.meets(c, target_m, confident=True)
-
             def on_search_seeds(c: Candidate) -> bool:
                 return sim.meets(c, target_m)
+
+            def confirmed(c: Candidate) -> bool:  # fresh seeds only for a layout that meets on the search's
+                return on_search_seeds(c) and fresh.meets(c, target_m, confident=True)
 
             chosen = _bisect_by_simulation(ordered, on_search_seeds)
             while chosen is not None and not fresh.meets(chosen, target_m, confident=True):

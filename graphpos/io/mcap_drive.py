@@ -30,10 +30,10 @@ float64 values come back bit-exact; NaN is written as ``null`` and +-inf as
 reading; a missing or null required field is an error naming the row, and
 so is a field of the wrong JSON type (a string, a boolean, an array where a
 number belongs: never coerced, :mod:`graphpos.io.json_rules`). Messages
-exactly as graphpos writes them (fields in order, no spaces) are decoded a
-batch (:data:`_BATCH_ROWS`) at a time as one table of numbers
-(:func:`_template_table`); any other batch message by message with the
-JSON parser. Both give the same values bit for bit and the same errors.
+are decoded with msgspec, straight into a table of numbers where every
+message's fields are numbers or null (:func:`_number_table`); whatever
+msgspec refuses goes to the standard library's parser
+(:func:`_decode_messages`), so values and errors are json's bit for bit.
 
 Viewing topics (Foxglove well-known schemas, written for people, never read
 back):
@@ -694,7 +694,7 @@ def _decode_messages(payloads: list[bytes], where: str, first: int) -> list[dict
     import msgspec  # on first read, not at import: 40 ms of every command's start-up
 
     scan = _SCAN_JSON
-    decode = _row_decoder(None).decode
+    decode = msgspec.json.decode
     rows = []
     append = rows.append
     for i, payload in enumerate(payloads, start=first):
@@ -718,13 +718,10 @@ def _decode_messages(payloads: list[bytes], where: str, first: int) -> list[dict
 
 
 @functools.cache
-def _row_decoder(names: tuple[str, ...] | None):
-    """msgspec's JSON decoder of a message whose fields ``names`` are each a number or null (others
-    ignored); of any JSON value for None."""
+def _row_decoder(names: tuple[str, ...]):
+    """msgspec's JSON decoder of a message whose fields ``names`` are each a number or null (others ignored)."""
     import msgspec
 
-    if names is None:
-        return msgspec.json.Decoder()
     fields = [(name, int | float | None | msgspec.UnsetType, msgspec.UNSET) for name in names]
     return msgspec.json.Decoder(msgspec.defstruct("Row", fields))
 

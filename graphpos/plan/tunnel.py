@@ -79,13 +79,15 @@ class TunnelSpec:
 
     def __post_init__(self) -> None:
         from graphpos.sim import SCENARIOS
-        from graphpos.sim.params import sensor_set
+        from graphpos.sim.params import default_params, sensor_set
+        from graphpos.sim.rss import ENVIRONMENTS
 
-        sensor_set({"sensors": self.sensors})
-        if "rfid" not in sensor_set({"sensors": self.sensors}):
+        if "rfid" not in sensor_set(self.sensors):
             raise ConfigError("plan-layout: the sensors must include rfid (the tags are what is planned)")
-        if not (math.isfinite(self.reader_range_m) and 0 < self.reader_range_m <= 9.0):
-            raise ConfigError(f"plan-layout: the reader range must be in (0, 9] m (the RSS law's reach), got {self.reader_range_m!r}")
+        reach_m = ENVIRONMENTS[default_params(BASE_SCENARIO)["rss_environment"]].max_range_m
+        if not (math.isfinite(self.reader_range_m) and 0 < self.reader_range_m <= reach_m):
+            raise ConfigError(f"plan-layout: the reader range must be in (0, {reach_m:g}] m (the RSS law's reach), "
+                              f"got {self.reader_range_m!r}")
         patterns = SCENARIOS[BASE_SCENARIO].patterns
         if self.pattern not in patterns:
             raise ConfigError(f"plan-layout: unknown motion pattern '{self.pattern}' (known: {', '.join(patterns)})")

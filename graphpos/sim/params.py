@@ -606,12 +606,12 @@ MAX_ROUTE_M = 50_000.0
 SENSORS = ("imu", "wheel", "compass", "rfid", "rsu", "gnss")
 
 
-def sensor_set(params: dict[str, Any]) -> tuple[str, ...]:
-    """The channels of parameter ``sensors``, checked: known names, at least one."""
-    names = tuple(n.strip() for n in str(params["sensors"]).split(",") if n.strip())
+def sensor_set(sensors: str) -> tuple[str, ...]:
+    """The channels of a ``sensors`` parameter (comma-separated), checked: known names, at least one."""
+    names = tuple(n.strip() for n in str(sensors).split(",") if n.strip())
     unknown = [n for n in names if n not in SENSORS]
     if unknown or not names:
-        raise ConfigError(f"parameter 'sensors' must list sensors among {', '.join(SENSORS)} (comma-separated), got {params['sensors']!r}")
+        raise ConfigError(f"parameter 'sensors' must list sensors among {', '.join(SENSORS)} (comma-separated), got {sensors!r}")
     return names
 
 
@@ -621,7 +621,7 @@ def check_params(params: dict[str, Any]) -> None:
     env = params["rss_environment"]
     if env not in ENVIRONMENTS:
         raise ConfigError(f"unknown rss_environment '{env}' (known: {', '.join(ENVIRONMENTS)})")
-    sensor_set(params)
+    sensor_set(params["sensors"])
     if "rfid" in params and not 0 < params["rfid"]["reader_range_m"] <= ENVIRONMENTS[env].max_range_m:
         raise ConfigError(f"parameter 'rfid.reader_range_m' must be in (0, {ENVIRONMENTS[env].max_range_m:g}] m "
                           f"(the {env} RSS law and its range models reach that far), got {params['rfid']['reader_range_m']}")

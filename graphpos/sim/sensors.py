@@ -225,8 +225,10 @@ def rfid(traj: Trajectory, tags: TagMap, env: RssEnvironment, duration_s: float,
 
     Detection probability is ``1 - read_failure_probability`` within the
     environment's reliable range and falls linearly to zero at its maximum
-    range. The radio reports RSS only, so ``range_m`` is NaN (a ranging radio
-    adds it: :func:`rfid_ranges`).
+    range. A reader of shorter range (``p["reader_range_m"]``) does not hear
+    the farther tags: their rows are dropped after every draw, so the rows
+    left are those of the full range, bit for bit. The radio reports RSS
+    only, so ``range_m`` is NaN (a ranging radio adds it: :func:`rfid_ranges`).
     """
     t = sample_times(duration_s, p["rate_hz"])
     empty = {"t_s": np.zeros(0), "tag_id": np.zeros(0), "rss": np.zeros(0), "true_range_m": np.zeros(0)}
@@ -249,7 +251,8 @@ def rfid(traj: Trajectory, tags: TagMap, env: RssEnvironment, duration_s: float,
     rss = env.sample_rss(dist, rng, offsets_db[tag_idx])
     wild = rng.random(dist.size) < p["outlier_probability"]
     rss[wild] = np.clip(np.round(rss[wild] + env.units_per_db * rng.standard_normal(int(wild.sum())) * p["outlier_sigma_db"]), 0, 255)
-    return {"t_s": t[read], "tag_id": tags.tag_id[tag_idx].astype(np.float64), "rss": rss, "true_range_m": dist}
+    near = dist <= p["reader_range_m"]
+    return {"t_s": t[read][near], "tag_id": tags.tag_id[tag_idx][near].astype(np.float64), "rss": rss[near], "true_range_m": dist[near]}
 
 
 def rfid_road_test(cols: dict[str, np.ndarray], tags: TagMap, env: RssEnvironment, p: dict[str, Any],

@@ -173,8 +173,6 @@ def simulate(
     range_outliers = scans_dropped = 0
     if "rfid" in params and len(tags):
         cols["rfid"] = sensors.rfid(traj, tags, env, duration_s, params["rfid"], sensors.stream(seed, "rfid"))
-        heard = cols["rfid"]["true_range_m"] <= params["rfid"]["reader_range_m"]
-        cols["rfid"] = {k: v[heard] for k, v in cols["rfid"].items()}  # a shorter reader range: the farther tags unheard
         cols["rfid"], scans_dropped = sensors.rfid_road_test(cols["rfid"], tags, env, params["rfid"], errors["reader_gain_db"],
                                                              sensors.stream(seed, "rfid_road"))
         if params["rfid"]["reports_range"]:
@@ -191,7 +189,7 @@ def simulate(
     elif "gnss_approach" in params and params["gnss_approach"]["enabled"]:
         cols["gnss"] = sensors.gnss_approach(traj, route, duration_s, params["gnss_approach"], sensors.stream(seed, "gnss_approach"))
     cols, fault_windows, fault_record = apply_faults(cols, faults, float(t_truth[-1]), seed, tags, env.units_per_db)
-    carried = sensor_set(params)
+    carried = sensor_set(params["sensors"])
     channels = {"truth": Channel("truth", truth), **{name: Channel(name, c) for name, c in cols.items() if name in carried}}
 
     record = {
