@@ -1,7 +1,10 @@
 """The ``graphpos`` command.
 
 Each command group lives in its own module with a ``register(subparsers)``
-function that adds its sub-commands (each with ``set_defaults(func=...)``).
+function that adds its sub-commands (each with ``set_defaults(func=...)``);
+:data:`COMMANDS` names every command's module and one-line help, so that a
+run imports only the module of its command (``graphpos --help`` none of
+them, nor numpy).
 A user mistake (any :class:`~graphpos.errors.GraphposError`, a missing or
 unreadable file) prints one line on stderr and exits with status 2; argparse
 does the same for bad options. Every line names the sub-command
@@ -24,18 +27,25 @@ from pathlib import Path
 from graphpos import __version__
 from graphpos.errors import GraphposError
 
-#: Command-group modules, in the order their commands appear in --help.
-_COMMAND_MODULES = (
-    "graphpos.cli.sim",
-    "graphpos.cli.drives",
-    "graphpos.cli.ranging",
-    "graphpos.cli.estimators",
-    "graphpos.cli.calibrate",
-    "graphpos.cli.evaluation",
-    "graphpos.cli.plan",
-    "graphpos.cli.faults",
-    "graphpos.cli.live",
-)
+#: Every command, in the order of ``--help``: the command-group module that registers it and its one-line
+#: help (the list of ``graphpos --help``; the module's ``add_parser`` takes it from here).
+COMMANDS: dict[str, tuple[str, str]] = {
+    "scenarios": ("graphpos.cli.sim", "list the simulated scenarios"),
+    "simulate": ("graphpos.cli.sim", "simulate a drive into an MCAP file"),
+    "info": ("graphpos.cli.drives", "summarise a drive file"),
+    "import": ("graphpos.cli.drives", "import a recorded dataset as a drive file"),
+    "ranging": ("graphpos.cli.ranging", "RSS -> distance models and range calibration"),
+    "estimators": ("graphpos.cli.estimators", "list the estimators"),
+    "run": ("graphpos.cli.estimators", "run estimators over a drive"),
+    "calibrate": ("graphpos.cli.calibrate", "find a drive's sensor profile (biases, scales, noise) without its truth"),
+    "evaluate": ("graphpos.cli.evaluation", "run estimators over drives and write a comparison report"),
+    "reproduce": ("graphpos.cli.evaluation", "reproduce the papers' tables on simulated drives (and real data)"),
+    "layout-study": ("graphpos.cli.evaluation", "RMS error against number of tags (how few tags suffice)"),
+    "plan-layout": ("graphpos.cli.plan", "the cheapest tag layout whose error meets a target (by the bound, then simulation)"),
+    "fault-study": ("graphpos.cli.faults", "every estimator through every injected fault: error, recovery, health"),
+    "live": ("graphpos.cli.live", "run online estimators on measurements as they arrive; serve them to Foxglove"),
+    "replay": ("graphpos.cli.live", "send a recorded drive as a live feed (for `graphpos live`)"),
+}
 
 
 class _Parser(argparse.ArgumentParser):
@@ -84,17 +94,43 @@ def warning_line(command: str, message: str) -> str:
     return f"graphpos {command}: warning: {one_line(message)}"
 
 
-def build_parser() -> argparse.ArgumentParser:
+class _Commands(argparse._SubParsersAction):
+    """The sub-commands of ``graphpos``: each one's help is its entry of :data:`COMMANDS`."""
+
+    def add_parser(self, name: str, **kwargs) -> argparse.ArgumentParser:
+        return super().add_parser(name, help=COMMANDS[name][1], **kwargs)
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The parser of ``graphpos``.
+
+    Parameters
+    ----------
+    command : str, optional
+        The command to be run: only the module registering it is imported
+        and its commands' parsers built; every other command gets a parser
+        without arguments, there for ``--help`` and the list of choices
+        (none for a name that is not a command). None: every command's
+        parser, in full.
+    """
     parser = _Parser(prog="graphpos", description="Vehicle positioning where GNSS is denied.")
     parser.add_argument("--version", action="version", version=f"graphpos {__version__}")
+    parser.register("action", "parsers", _Commands)
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_CommandParser)
-    for module_name in _COMMAND_MODULES:
-        importlib.import_module(module_name).register(sub)
+    wanted = None if command is None else COMMANDS.get(command, ("",))[0]
+    registered = set()
+    for name, (module_name, _) in COMMANDS.items():
+        if wanted is not None and module_name != wanted:
+            sub.add_parser(name)
+        elif module_name not in registered:  # its commands, this one first (they follow each other in COMMANDS)
+            importlib.import_module(module_name).register(sub)
+            registered.add(module_name)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    parser = build_parser(next((arg for arg in argv if not arg.startswith("-")), ""))
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)

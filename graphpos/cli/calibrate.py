@@ -19,7 +19,7 @@ from graphpos.cli import add_output_option, one_line
 
 
 def register(sub) -> None:
-    p = sub.add_parser("calibrate", help="find a drive's sensor profile (biases, scales, noise) without its truth",
+    p = sub.add_parser("calibrate",
                        description="Self-calibrate the drive's sensors with graph-batch (truth hidden) and save the "
                                    "sensor profile as JSON, for --profile on run and evaluate.")
     p.add_argument("drive", type=Path, metavar="DRIVE.mcap", help="drive file")

@@ -14,7 +14,7 @@ from graphpos.cli import add_output_option, one_line, warning_line
 
 
 def register(sub) -> None:
-    p = sub.add_parser("info", help="summarise a drive file",
+    p = sub.add_parser("info",
                        description="Channels (rows, rate, time span), tags and layouts, RSUs, windows, origin, "
                                    "parameters and stored estimates of a drive MCAP file. rate_hz counts distinct "
                                    "timestamps per second: (distinct times - 1) / (last - first). The checks "
@@ -29,7 +29,7 @@ def register(sub) -> None:
                         "truth_checks {heading, ranges, odometry, turn}")
     p.set_defaults(func=_info)
 
-    group = sub.add_parser("import", help="import a recorded dataset as a drive file",
+    group = sub.add_parser("import",
                            description="Convert a recorded dataset into a drive MCAP file.")
     formats = group.add_subparsers(dest="import_format", required=True, parser_class=type(group))
     p = formats.add_parser("plaza", help="a CMU Plaza range-only dataset (.mat with GT, DR, TD, TL)",

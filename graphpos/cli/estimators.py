@@ -55,7 +55,7 @@ if TYPE_CHECKING:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("estimators", help="list the estimators",
+    p = sub.add_parser("estimators",
                        description="Every estimator `graphpos run` knows: name, what it is, the channels it "
                                    "needs (`rsu or gnss`: one of them) and, in brackets, the others it uses when "
                                    "present.")
@@ -64,7 +64,7 @@ def register(sub) -> None:
                         "which one channel is needed), optional_channels, config}")
     p.set_defaults(func=_estimators)
 
-    p = sub.add_parser("run", help="run estimators over a drive",
+    p = sub.add_parser("run",
                        description="Run one or more estimators over a drive and write into a folder their estimates "
                                    "(NAME.csv, .tum, .kml, .geojson), the truth's (truth.*, when the drive has it), "
                                    "all_estimates.kml, estimates.mcap (Foxglove), estimates_ros2/ (a ROS 2 bag of "

@@ -33,7 +33,7 @@ def _add_execution_options(p: argparse.ArgumentParser) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("evaluate", help="run estimators over drives and write a comparison report",
+    p = sub.add_parser("evaluate",
                        description="Run estimators over drives with truth; write results.json, report.md/html, "
                                    "plots and, per drive, the exports `graphpos run` writes: TUM/KML/GeoJSON/CSV of "
                                    "each estimate and of the truth, estimates.mcap (Foxglove) and estimates_ros2/ "
@@ -51,7 +51,7 @@ def register(sub) -> None:
     _add_execution_options(p)
     p.set_defaults(func=_evaluate)
 
-    p = sub.add_parser("reproduce", help="reproduce the papers' tables on simulated drives (and real data)",
+    p = sub.add_parser("reproduce",
                        description="The papers' experiments on simulated drives built to their specifications, "
                                    "published figures beside ours on each simulator sensor profile, the "
                                    "factor-graph estimators as extra rows; Plaza and MRCLAM when present.")
@@ -74,7 +74,7 @@ def register(sub) -> None:
     _add_execution_options(p)
     p.set_defaults(func=_reproduce)
 
-    p = sub.add_parser("layout-study", help="RMS error against number of tags (how few tags suffice)",
+    p = sub.add_parser("layout-study",
                        description="RMS in the tunnel against the number of tags (dense, optimized, groups every "
                                    "60/90/120 m) for fusion-ekf, fukf, graph-isam2 and graph-batch over seeds.")
     p.add_argument("scenario", help="simulation scenario (e.g. paper-straight)")

@@ -9,7 +9,7 @@ from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option
 
 
 def register(sub) -> None:
-    p = sub.add_parser("fault-study", help="every estimator through every injected fault: error, recovery, health",
+    p = sub.add_parser("fault-study",
                        description="Run every estimator on seeded drives of SCENARIO, fault-free and with each fault "
                                    "of the simulator injected in turn; report max/RMS error during the fault, the "
                                    "recovery time after it, output rate, covariance health and exceptions.")

@@ -51,7 +51,7 @@ def register(sub) -> None:
     from graphpos.cli.calibrate import add_profile_option
     from graphpos.cli.estimators import add_initial_pose_option, add_settings_options
 
-    p = sub.add_parser("live", help="run online estimators on measurements as they arrive; serve them to Foxglove",
+    p = sub.add_parser("live",
                        description="Listen for measurements (one JSON message per UDP datagram or TCP line, in the drive's "
                                    "channel schemas, or rosbridge messages through an import mapping), run online "
                                    "estimators on them as they arrive, publish each estimate on a Foxglove WebSocket "
@@ -81,7 +81,7 @@ def register(sub) -> None:
     add_profile_option(p)
     p.set_defaults(func=_live)
 
-    p = sub.add_parser("replay", help="send a recorded drive as a live feed (for `graphpos live`)",
+    p = sub.add_parser("replay",
                        description="Send a drive's measurements (never its truth) at their recorded arrival times, one "
                                    "JSON message each, to a `graphpos live`; optionally lose, garble, duplicate and "
                                    "reorder messages as a real network does.")

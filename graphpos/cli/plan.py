@@ -8,7 +8,7 @@ from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option, one_line
 
 
 def register(sub) -> None:
-    p = sub.add_parser("plan-layout", help="the cheapest tag layout whose error meets a target (by the bound, then simulation)",
+    p = sub.add_parser("plan-layout",
                        description="Search tag layout families (pairs, staggered, one wall, groups) for a tunnel by "
                                    "the position bound, then confirm the cheapest by simulation. Writes report.md/html, "
                                    "results.json, plan.png and layout.toml (for graphpos simulate --config).")

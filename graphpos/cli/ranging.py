@@ -14,7 +14,7 @@ from graphpos.io.outputs import check_output_file
 
 
 def register(sub) -> None:
-    group = sub.add_parser("ranging", help="RSS -> distance models and range calibration",
+    group = sub.add_parser("ranging",
                            description="LSSVM and propagation models from RSS to distance (song2016), and "
                                        "the linear calibration of reported ranges.")
     commands = group.add_subparsers(dest="ranging_command", required=True, parser_class=type(group))

@@ -13,7 +13,7 @@ from graphpos.sim.params import PROFILES
 
 
 def register(sub) -> None:
-    p = sub.add_parser("scenarios", help="list the simulated scenarios",
+    p = sub.add_parser("scenarios",
                        description="The simulated test set-ups (the papers' experiments and beyond), "
                                    "their motion patterns and default durations.")
     p.add_argument("--json", action="store_true", help="print a JSON list of {name, summary, patterns, default_pattern, default_duration_s}")
@@ -23,7 +23,7 @@ def register(sub) -> None:
                    help="with --params: the parameters under this sensor profile (" + ", ".join(PROFILES) + "; default ideal)")
     p.set_defaults(func=_scenarios)
 
-    p = sub.add_parser("simulate", help="simulate a drive into an MCAP file",
+    p = sub.add_parser("simulate",
                        description="Simulate one seeded, deterministic drive of a scenario: truth, IMU, wheel "
                                    "speed, compass, RFID/RSU/GNSS where the scenario has them, tag layouts and "
                                    "windows. Parameters default to the papers' values; --config overrides them.")

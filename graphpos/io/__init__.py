@@ -13,6 +13,16 @@
   :mod:`graphpos.io.ros2_bag`).
 """
 
-from graphpos.io.mcap_drive import read_drive, read_estimates, read_mcap, write_drive
+import importlib
 
 __all__ = ["read_drive", "read_estimates", "read_mcap", "write_drive"]
+
+
+def __getattr__(name: str):
+    """The public names, from :mod:`graphpos.io.mcap_drive` on first use (PEP 562), so that importing a
+    light sub-module (``graphpos.io.files``) does not import numpy, msgspec and mcap."""
+    if name not in __all__:
+        raise AttributeError(f"module 'graphpos.io' has no attribute {name!r}")
+    value = getattr(importlib.import_module("graphpos.io.mcap_drive"), name)
+    globals()[name] = value
+    return value

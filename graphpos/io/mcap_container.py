@@ -48,10 +48,13 @@ from mcap.records import (
     Statistics,
     SummaryOffset,
 )
-from mcap.writer import MCAP0_MAGIC
 
 from graphpos.errors import FileFormatError
 from graphpos.io.files import open_input
+
+#: The magic bytes at both ends of an MCAP file (``mcap.writer.MCAP0_MAGIC``, here because importing
+#: ``mcap.writer`` costs every reading command importlib.metadata).
+MCAP0_MAGIC = b"\x89MCAP0\r\n"
 
 #: Uncompressed bytes of message records per chunk.
 CHUNK_SIZE = 4 * 1024 * 1024

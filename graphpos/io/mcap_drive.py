@@ -93,6 +93,7 @@ marked ``"unclosed_recording": True`` (:func:`read_drive`).
 from __future__ import annotations
 
 import functools
+import itertools
 import json
 import json.scanner
 import os
@@ -107,8 +108,6 @@ from graphpos.colors import rgb_of
 from graphpos.drive import CHANNEL_SPECS, Channel, ColumnSpec, Drive, GeoOrigin, RsuMap, TagMap, Window
 from graphpos.errors import ConfigError, DriveError, FileFormatError
 from graphpos.estimate import Estimate, OutputRow
-from graphpos.io.outputs import atomic_output
-from graphpos.io.geo import enu_to_geodetic
 from graphpos.io.json_rules import (DRIVE_METADATA_RULES, ESTIMATE_METADATA_RULES, JsonRuleError, Rule, check_value,
                                     number_column, number_rows)
 from graphpos.io.mcap_container import LIVE_LIBRARY, McapContents, Topic, read_mcap_contents, write_mcap
@@ -313,6 +312,8 @@ def _location_fixes(t_ns: np.ndarray, east_m, north_m, var_m2: tuple[np.ndarray,
                     colored_as: str | None = None) -> list[bytes]:
     """LocationFix messages; ``var_m2`` = (east, north) variances where known; ``colored_as``: the estimator
     (or ``truth``) whose colour (:func:`graphpos.colors.rgb_of`) the fixes carry, None for none."""
+    from graphpos.io.geo import enu_to_geodetic
+
     lat, lon = enu_to_geodetic(east_m, north_m, origin)
     sec, nsec = _stamps(t_ns)
     n = t_ns.size
@@ -381,6 +382,8 @@ def pose_payload(t_ns: int, east_m: float, north_m: float, yaw_rad: float | None
 def map_geojson_payload(drive: Drive, origin: GeoOrigin) -> bytes:
     """The ``foxglove.GeoJSON`` message of the ``/map`` topic (:data:`GEOJSON_SCHEMA`):
     the drive's tags (with wall side, group, layouts) and RSUs as points about ``origin``."""
+    from graphpos.io.geo import enu_to_geodetic
+
     features = []
     tags = drive.tags
     lat, lon = enu_to_geodetic(tags.east_m, tags.north_m, origin)
@@ -666,6 +669,8 @@ def write_drive(path: str | os.PathLike, drive: Drive, estimates: Iterable[Estim
     FileFormatError
         The file cannot be written (missing folder, no permission ...).
     """
+    from graphpos.io.outputs import atomic_output  # here, as graphpos.io.geo (pymap3d): reading needs neither
+
     path = Path(path)
     estimates = list(estimates)
     origin = origin if origin is not None else drive.origin
@@ -723,7 +728,7 @@ def _row_decoder(names: tuple[str, ...]):
     import msgspec
 
     fields = [(name, int | float | None | msgspec.UnsetType, msgspec.UNSET) for name in names]
-    return msgspec.json.Decoder(msgspec.defstruct("Row", fields))
+    return msgspec.json.Decoder(msgspec.defstruct("Row", fields, gc=False))  # numbers only: nothing for the GC to track
 
 
 def _number_table(payloads: list[bytes], names: tuple[str, ...]) -> np.ndarray | None:
@@ -734,7 +739,11 @@ def _number_table(payloads: list[bytes], names: tuple[str, ...]) -> np.ndarray |
 
     decode, astuple = _row_decoder(names).decode, msgspec.structs.astuple
     try:
-        table = np.array([astuple(decode(p)) for p in payloads], dtype=np.float64)
+        try:  # straight into the table, the fast way, unless a value is null
+            table = np.fromiter(itertools.chain.from_iterable(map(astuple, map(decode, payloads))), np.float64,
+                                count=len(payloads) * len(names))
+        except TypeError:  # a null (None), which np.array reads as NaN, or an absent field (UNSET): decoded again
+            table = np.array(list(map(astuple, map(decode, payloads))), dtype=np.float64)
     except (msgspec.DecodeError, TypeError, OverflowError):  # not JSON msgspec takes, a value not a number, an absent field
         return None
     return table.reshape(len(payloads), len(names))
