@@ -17,11 +17,10 @@ Usage, inside a benchmark process only (the recorder monkeypatches
 
 What is recorded
 ----------------
-- every :class:`graphpos.graph.smoothers.Isam2Smoother` and
-  :class:`~graphpos.graph.smoothers.FixedLagSmoother` constructed (its model
-  name, lag), and every call made on its GTSAM object (``isam`` /
-  ``smoother``, and the fixed-lag smoother's inner iSAM2 from
-  ``getISAM2()``): ``update`` (the forced relinearisations of
+- every :class:`graphpos.graph.smoothers.FixedLagSmoother` constructed
+  (graph-isam2's and graph-batch's windowed iSAM2 is one; its model name,
+  lag), and every call made on its GTSAM object (``smoother``, and its inner
+  iSAM2 from ``getISAM2()``): ``update`` (the forced relinearisations of
   :func:`~graphpos.graph.smoothers.relinearise` and graph-isam2's range
   rebuild with removed factor indices included), ``calculateEstimate*``,
   ``calculateBestEstimate`` and ``marginalCovariance``, each with a copy of
@@ -201,14 +200,7 @@ class Recorder:
         from graphpos.graph import builder, estimators, ranges, smoothers
 
         rec = self
-        isam_init, lag_init = smoothers.Isam2Smoother.__init__, smoothers.FixedLagSmoother.__init__
-
-        def isam2_init(obj, model_name: str):
-            isam_init(obj, model_name)
-            sid = len(rec.smoothers)
-            rec.smoothers.append(("isam2", model_name, None))
-            rec.calls.append(("new", sid, None, None, None))
-            obj.isam = _Proxy(rec, sid, "isam2", obj.isam)
+        lag_init = smoothers.FixedLagSmoother.__init__
 
         def fixed_lag_init(obj, model_name: str, lag_s: float):
             lag_init(obj, model_name, lag_s)
@@ -250,7 +242,6 @@ class Recorder:
                     setattr(rec.split, field, getattr(rec.split, field) + time.process_time() - c)
             return wrapper
 
-        self._patch(smoothers.Isam2Smoother, "__init__", isam2_init)
         self._patch(smoothers.FixedLagSmoother, "__init__", fixed_lag_init)
         for module in (estimators, ranges):
             self._patch(module, "optimise", recorded_optimise)
@@ -284,11 +275,8 @@ class Recorder:
         c0 = time.process_time()
         for kind, sid, target, args, _ in self.calls:
             if kind == "new":
-                what, model_name, lag_s = self.smoothers[sid]
-                if what == "isam2":
-                    objects[sid] = gtsam.ISAM2(isam2_params(model_name))
-                else:
-                    objects[sid] = gtsam.IncrementalFixedLagSmoother(lag_s, isam2_params(model_name, find_unused_factor_slots=True))
+                _, model_name, lag_s = self.smoothers[sid]
+                objects[sid] = gtsam.IncrementalFixedLagSmoother(lag_s, isam2_params(model_name, find_unused_factor_slots=True))
                 outputs.append(None)
             elif kind == "update":
                 obj = objects[sid].getISAM2() if target == "inner-isam2" else objects[sid]

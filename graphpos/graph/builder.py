@@ -174,8 +174,9 @@ class GraphBuilder:
         A start pose from the user (prior with its sigmas at keyframe 0);
         None: ignition finds the start.
     release_window_s : float
-        Without history, how much of the held start-up track is released
-        to the smoother at anchoring.
+        How much of the held start-up track is released to the smoother at
+        anchoring (its window less a late reading's delay); the history
+        keeps all of it.
     """
 
     def __init__(
@@ -200,7 +201,7 @@ class GraphBuilder:
         self.keep_history = keep_history
         self.range_scale = range_scale
         self.initial_pose = initial_pose
-        self.release_window_s = release_window_s if not keep_history else math.inf
+        self.release_window_s = release_window_s
         self.period_s = 1.0 / config.keyframe_rate_hz
         self.tags = {int(i): (float(e), float(n), int(w)) for i, e, n, w in zip(drive.tags.tag_id, drive.tags.east_m, drive.tags.north_m, drive.tags.wall_side)}
         self.rsus = {int(i): (float(e), float(n)) for i, e, n in zip(drive.rsus.rsu_id, drive.rsus.east_m, drive.rsus.north_m)}
@@ -711,6 +712,32 @@ class GraphBuilder:
             g.add(self.model.wheel_factor(k, delta, self.wheel_scale))
         return g
 
+    def history_values(self, recent: gtsam.Values) -> gtsam.Values:
+        """Values of every variable of :meth:`graph`: ``recent``'s, else the causal ones.
+
+        ``recent`` is a windowed smoother's estimate; the variables it has
+        marginalised take the state read at their keyframe's update
+        (:attr:`states`) and the landmarks their map position.
+        """
+        values = gtsam.Values(recent)
+        for k in sorted(self.states):
+            if values.exists(self.model.pose_key(k)):
+                continue
+            keyframe = gtsam.Values()  # its pose, velocity and bias node: those not already there
+            self.model.insert_values(keyframe, k, self.states[k])
+            for known in [key for key in keyframe.keys() if values.exists(key)]:
+                keyframe.erase(known)
+            values.insert(keyframe)
+        for key in self.fixed_factors.keyVector():
+            if values.exists(key):
+                continue
+            symbol = gtsam.Symbol(key)
+            if chr(symbol.chr()) in "lr":
+                values.insert(key, self.model.landmark(key, *self.landmark_positions[key])[1])
+            else:  # a bias node a track's first keyframe shares with the keyframes before it
+                self.model.insert_bias(values, int(symbol.index()), self.states[int(symbol.index())])
+        return values
+
     def fit_wheel_scale(self, values: gtsam.Values, since_keyframe: int = 0) -> float:
         """Wheel scale (``reading = scale * true``) fitting the wheel deltas to a solved trajectory.
 
@@ -778,8 +805,8 @@ class GraphBuilder:
     def _release(self, last: Increment | None, start_keyframe: int | None) -> Increment:
         """The held keyframes as one increment, moved onto the start, with the start prior at ``start_keyframe``.
 
-        Without history (fixed-lag) only the keyframes within
-        ``release_window_s`` are released: older ones would be marginalised
+        Only the keyframes within ``release_window_s`` are released to the
+        smoother (the history keeps them all): older ones would be marginalised
         at once, and marginalising a long, weakly anchored dead-reckoned
         track is numerically indeterminate.
         """

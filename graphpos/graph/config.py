@@ -123,6 +123,15 @@ class GraphConfig:
         Smoother lag of ``graph-fixed-lag``, s. Keyframes are marginalised
         once per ``smoothers.MARGINALISE_EVERY_S`` (1 s), so the window
         holds between ``fixed_lag_s`` and ``fixed_lag_s`` + 1 s.
+    isam2_window_s : float
+        ``graph-isam2`` keeps the keyframes of this many seconds in its
+        iSAM2; older ones are marginalised (their information stays as a
+        prior on the rest), so its per-update cost stays flat on long drives
+        (:class:`~graphpos.graph.smoothers.WindowedIsam2Smoother`). Its causal
+        output is the same as with the whole history wherever readings
+        older than this no longer move the present (a few tag spacings or
+        odometry gaps back). Its learning and ``final`` solves use the whole
+        history, kept by the estimator, not this window.
     final : bool
         ``graph-isam2`` only: return the smoothed trajectory at the end
         instead of the causal one.
@@ -188,6 +197,7 @@ class GraphConfig:
     max_delay_s: float = 3.0
     max_odometry_gap_s: float = MAX_ODOMETRY_GAP_S
     fixed_lag_s: float = 10.0
+    isam2_window_s: float = 120.0
     final: bool = False
     output_covariance: bool = True
     range_scale: str = "auto"
@@ -212,11 +222,12 @@ class GraphConfig:
         require_positive_numbers(self, skip=("max_delay_s",))
         if not (math.isfinite(self.max_delay_s) and self.max_delay_s >= 0):
             raise ConfigError(f"max_delay_s must be >= 0, got {self.max_delay_s}")
-        if self.fixed_lag_s <= self.max_delay_s + 2.0 / self.keyframe_rate_hz:
-            raise ConfigError(
-                f"fixed_lag_s ({self.fixed_lag_s}) must exceed max_delay_s ({self.max_delay_s}) by at least two keyframes, "
-                "or late readings would refer to keyframes already marginalised"
-            )
+        for name in ("fixed_lag_s", "isam2_window_s"):
+            if getattr(self, name) <= self.max_delay_s + 2.0 / self.keyframe_rate_hz:
+                raise ConfigError(
+                    f"{name} ({getattr(self, name)}) must exceed max_delay_s ({self.max_delay_s}) by at least two keyframes, "
+                    "or late readings would refer to keyframes already marginalised"
+                )
         lo, hi = self.range_scale_bounds
         if not (0 < lo < 1 < hi):
             raise ConfigError(f"range_scale_bounds must bracket 1, got {self.range_scale_bounds}")

@@ -7,7 +7,10 @@ measurement in arrival order + ``finish``.
 - ``graph-isam2``: one iSAM2 update per keyframe with that keyframe's new
   factors and values only; the output row of keyframe ``k`` is the estimate
   right after its update, i.e. from data received up to ``t_k`` (causal).
-  ``config.final`` returns the smoothed trajectory of the whole drive instead.
+  Its iSAM2 holds the last ``config.isam2_window_s`` of keyframes, so the
+  per-update cost stays flat on long drives; the estimator keeps every
+  factor, and ``config.final`` returns the smoothed trajectory of the whole
+  drive from them instead.
 - ``graph-fixed-lag``: the same with GTSAM's IncrementalFixedLagSmoother
   (``config.fixed_lag_s``); per-update cost and memory stay flat.
   ``graph-fixed-lag-smoothed`` outputs each keyframe from the same
@@ -20,6 +23,7 @@ measurement in arrival order + ``finish``.
 
 from __future__ import annotations
 
+import collections
 import dataclasses
 import math
 from typing import Any
@@ -34,7 +38,7 @@ from graphpos.estimator import Estimator
 from graphpos.graph.builder import GraphBuilder, Increment
 from graphpos.graph.config import GraphConfig
 from graphpos.graph.models import KeyframeState, make_model
-from graphpos.graph.smoothers import MARGINALISE_EVERY_S, FixedLagSmoother, Isam2Smoother, ValuesSource, gtsam_error
+from graphpos.graph.smoothers import MARGINALISE_EVERY_S, FixedLagSmoother, ValuesSource, WindowedIsam2Smoother, gtsam_error
 from graphpos.ignition import NOT_STARTED
 from graphpos.ranging.drive_models import reading_models
 
@@ -62,10 +66,15 @@ class _GraphEstimator(Estimator):
 
     # -- hooks ------------------------------------------------------------------
     def _make_smoother(self, model_name: str):
-        return Isam2Smoother(model_name)
+        return WindowedIsam2Smoother(model_name, self.config.isam2_window_s)
 
     def _builder_options(self) -> dict[str, Any]:
-        return {"max_delay_s": self.config.max_delay_s}
+        return {"max_delay_s": self.config.max_delay_s, "release_window_s": self._release_window_s(self.config.isam2_window_s)}
+
+    def _release_window_s(self, window_s: float) -> float:
+        """How much of the held start-up track to release into a smoother of this window: what it keeps
+        for at least a late reading's delay (:meth:`GraphBuilder._release`)."""
+        return window_s - self.config.max_delay_s - 1.0 / self.config.keyframe_rate_hz
 
     # -- online ---------------------------------------------------------------
     def start(self, drive: Drive) -> None:
@@ -183,6 +192,13 @@ class GraphIsam2(_GraphEstimator):
     small multiple of one batch solve of the drive. graph-fixed-lag does not
     learn (it keeps no history); without learning the two give the same
     causal output (:class:`GraphFixedLag`).
+
+    Its iSAM2 keeps a window of ``config.isam2_window_s``
+    (:class:`~graphpos.graph.smoothers.WindowedIsam2Smoother`): full iSAM2's
+    per-update cost grows with the drive (8.5x from the first to the last
+    sixth of an hour). The builder keeps every factor, so learning and
+    ``final`` still solve the whole track; a learnt range model rebuilds the
+    ranges still in the window.
     """
 
     name = "graph-isam2"
@@ -211,7 +227,7 @@ class GraphIsam2(_GraphEstimator):
 
         b = self.builder
         what = f"{self.name} on '{self._drive_name}' (learning at keyframe {k})"
-        values = self.smoother.estimate()
+        values = b.history_values(self.smoother.estimate())
         scale = b.range_scale
         reported = getattr(b.range_model, "input_column", None) == "range_m"
         if self._estimates_range_scale() and b.range_records:
@@ -226,34 +242,40 @@ class GraphIsam2(_GraphEstimator):
         corrections = b.corrections.combined(dataclasses.replace(found, range_scale=1.0, range_offset_m=0.0))
         range_model = found.range_model() if reported and self.range_model is None else None
         b.recalibrate(corrections, scale, range_model)
-        if range_model is not None:
-            self._rebuild_ranges(values, what)
+        rebuilt = self._rebuild_ranges(values, what) if range_model is not None else 0
         self._learnt_k = k
         self._learning.append({"keyframe": k, "range_scale": scale, "gyro_bias_radps": corrections.gyro_bias_radps,
-                               "yaw_rate_scale": corrections.yaw_rate_scale, "wheel_scale": corrections.wheel_scale})
+                               "yaw_rate_scale": corrections.yaw_rate_scale, "wheel_scale": corrections.wheel_scale,
+                               "ranges_rebuilt": rebuilt})
 
-    def _rebuild_ranges(self, values: gtsam.Values, what: str) -> None:
-        """Swap every range factor in iSAM2 for one with the learnt scale and sigma.
+    def _rebuild_ranges(self, values: gtsam.Values, what: str) -> int:
+        """Swap every range factor in iSAM2's window for one with the learnt scale and sigma.
 
         Left as they were built, the ranges received before a learning keep
         the old scale and pull the causal estimate for as long as they are
         near. The range records hold each reading, so iSAM2 removes the old
-        factors and takes the rebuilt ones in one update.
+        factors and takes the rebuilt ones in one update. Ranges of
+        marginalised keyframes are part of the window's prior and stay.
+        Returns how many were rebuilt.
         """
         b = self.builder
         b.reweight_ranges(values)
-        factors = self.smoother.isam.getFactorsUnsafe()
+        isam = self.smoother.isam
+        factors, theta = isam.getFactorsUnsafe(), isam.getLinearizationPoint()
         kinds = (gtsam.RangeFactor2D, gtsam.RangeFactor3D)
         old = [i for i in range(factors.size()) if factors.exists(i) and isinstance(factors.at(i), kinds)]
+        records = [r for r in b.range_records if theta.exists(self.model.pose_key(r.keyframe)) and theta.exists(r.landmark_key)]
+        # the window's range factors are those of the records whose keys it holds: all go, all come back rebuilt
+        if collections.Counter(tuple(factors.at(i).keys()) for i in old) != collections.Counter((self.model.pose_key(r.keyframe), r.landmark_key) for r in records):
+            return 0  # not one record per factor (should not happen): leave the graph as it is
         fresh = gtsam.NonlinearFactorGraph()
-        for r in b.range_records:
+        for r in records:
             fresh.add(b.range_factor(r, b.range_scale))
-        if len(old) != fresh.size():
-            return  # not one record per factor (should not happen): leave the graph as it is
         try:
-            self.smoother.isam.update(fresh, gtsam.Values(), old)
+            isam.update(fresh, gtsam.Values(), old)
         except RuntimeError as exc:
             raise gtsam_error(exc, f"{what}: rebuilding the ranges") from None
+        return fresh.size()
 
     def _estimate(self, rows: list[OutputRow]) -> Estimate:
         est = super()._estimate(rows)
@@ -265,18 +287,21 @@ class GraphIsam2(_GraphEstimator):
         self._apply(self.builder.flush())
         if not self.config.final or not self.builder.started:
             return self._estimate(self.rows)
+        what = f"{self.name}: final smoothing"
         try:
             self.smoother.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), {}, ANCHOR_ITERATIONS)
-            values = self.smoother.estimate()
+            recent = self.smoother.estimate()
         except RuntimeError as exc:
-            raise gtsam_error(exc, f"{self.name}: final smoothing") from None
-        # iSAM2 relinearises only variables that moved past their thresholds,
-        # which leaves the smoothed past up to about 1 cm off the optimum: a
-        # warm Levenberg-Marquardt pass over iSAM2's own factors finishes it.
-        values = optimise(self.smoother.isam.getFactorsUnsafe(), values, self.config, f"{self.name}: final smoothing")
+            raise gtsam_error(exc, what) from None
+        # the whole drive's factors (iSAM2 holds only its window's) from the
+        # window's estimate and, before it, the causal states: iSAM2
+        # relinearises only variables that moved past their thresholds, so
+        # even within the window a warm Levenberg-Marquardt pass finishes it
+        graph = self.builder.graph()
+        values = optimise(graph, self.builder.history_values(recent), self.config, what)
         covs = None
         if self.config.output_covariance:
-            covs = [self.smoother.marginal(self.model.pose_key(k)) for k in range(self.builder.last_keyframe + 1)]
+            covs = marginal_covariances(graph, values, [self.model.pose_key(k) for k in range(self.builder.last_keyframe + 1)], what)
         return self._estimate(_rows_from_values(self.model, self.builder, values, covs))
 
 
@@ -317,7 +342,7 @@ class GraphFixedLag(_GraphEstimator):
         return {
             "max_delay_s": self.config.max_delay_s,
             "keep_history": False,
-            "release_window_s": self.config.fixed_lag_s - self.config.max_delay_s - 1.0 / self.config.keyframe_rate_hz,
+            "release_window_s": self._release_window_s(self.config.fixed_lag_s),
         }
 
 
@@ -385,7 +410,8 @@ class GraphBatch(_GraphEstimator):
     merge_by = "t"
 
     def _builder_options(self) -> dict[str, Any]:
-        return {"max_delay_s": math.inf}
+        # offline no reading is late (merge_by = "t"), so the whole window may take the held track
+        return {"max_delay_s": math.inf, "release_window_s": self.config.isam2_window_s - 1.0 / self.config.keyframe_rate_hz}
 
     def process(self, measurement: Measurement) -> list[OutputRow]:
         m = measurement if measurement.arrival_s == measurement.t_s else measurement._replace(arrival_s=measurement.t_s)
@@ -468,7 +494,8 @@ class GraphBatch(_GraphEstimator):
         if not self.builder.started:
             return self._estimate([])
         try:
-            initial = self.smoother.estimate()
+            # the window's estimate, and before it the causal states: a start for Levenberg-Marquardt
+            initial = self.builder.history_values(self.smoother.estimate())
         except RuntimeError as exc:
             raise gtsam_error(exc, f"{self.name}: initial estimate") from None
         self.smoother = None  # the seeding pass's Bayes tree is done with: its memory goes before the batch solves

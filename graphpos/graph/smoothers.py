@@ -76,40 +76,6 @@ def gtsam_error(exc: Exception, what: str) -> EstimationError:
     return EstimationError(f"{what}: GTSAM failed: {text[:300]}")
 
 
-class Isam2Smoother:
-    """Full-history iSAM2.
-
-    Its per-update cost grows with the length of the drive, whatever the
-    update re-eliminates: in GTSAM 4.3.0 (and 4.3.2.dev) each update's
-    re-eliminated top of the Bayes tree is built as a temporary BayesTree
-    whose orphans (the rest of the tree) hang below it, and its
-    non-recursive destructor walks every descendant. On a plain Pose2
-    chain (one key and two factors per update, 4 variables re-eliminated)
-    the time of 2000 updates grows from 0.18 s to 0.96 s between 2000 and
-    10 000 keys; ``perf`` puts 61 % of the time in ``~BayesTree``. On a
-    60-minute drive graph-isam2's last sixth costs 8.5 times its first.
-    :class:`FixedLagSmoother` keeps a bounded tree and a flat cost.
-    """
-
-    def __init__(self, model_name: str):
-        self.isam = gtsam.ISAM2(isam2_params(model_name))
-
-    def update(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: dict[int, float], extra_iterations: int = 0) -> None:
-        self.isam.update(factors, values)
-        relinearise(self.isam, extra_iterations)
-
-    def source(self):
-        return self.isam
-
-    def marginal(self, key: int) -> np.ndarray:
-        return self.isam.marginalCovariance(key)
-
-    def estimate(self) -> gtsam.Values:
-        # full back-substitution: calculateEstimate() stops at the wildfire
-        # threshold, which leaves the smoothed past up to about 1 cm stale
-        return self.isam.calculateBestEstimate()
-
-
 class FixedLagSmoother:
     """GTSAM's IncrementalFixedLagSmoother (iSAM2 inside, bounded window).
 
@@ -159,6 +125,43 @@ class FixedLagSmoother:
 
     def estimate(self) -> gtsam.Values:
         return self.smoother.calculateEstimate()
+
+
+class WindowedIsam2Smoother(FixedLagSmoother):
+    """iSAM2 over the last ``window_s`` of keyframes: graph-isam2's smoother and graph-batch's seeding pass.
+
+    Full-history iSAM2's per-update cost grows with the length of the
+    drive, whatever the update re-eliminates: in GTSAM 4.3.0 (and
+    4.3.2.dev) each update's re-eliminated top of the Bayes tree is built as
+    a temporary BayesTree whose orphans (the rest of the tree) hang below
+    it, and its non-recursive destructor walks every descendant. On a plain
+    Pose2 chain (one key and two factors per update, 4 variables
+    re-eliminated) the time of 2000 updates grows from 0.18 s to 0.96 s
+    between 2000 and 10 000 keys; ``perf`` puts 61 % of the time in
+    ``~BayesTree``. On a 60-minute drive graph-isam2 cost 8.5 times as much
+    in its last sixth as in its first, and graph-batch's seeding iSAM2 held
+    most of its 1.5 GB.
+
+    So this is a fixed-lag smoother whose window is far longer than a causal
+    output needs (``GraphConfig.isam2_window_s``): keyframes older than that
+    are marginalised in batches (:class:`FixedLagSmoother`), and the Bayes
+    tree, its per-update cost and its memory stay bounded. Until the first
+    marginalisation it is a plain iSAM2 (GTSAM constrains the ordering only
+    when some variable is to be marginalised), so on a drive shorter than
+    the window it gives full iSAM2's estimates. Unlike graph-fixed-lag's
+    smoother, :meth:`estimate` back-substitutes fully (``calculateEstimate``
+    stops at the wildfire threshold, which leaves the smoothed past up to
+    about 1 cm stale). The whole drive's variables come from the estimators'
+    factor history (:meth:`~graphpos.graph.builder.GraphBuilder.history_values`).
+    """
+
+    @property
+    def isam(self) -> gtsam.ISAM2:
+        """The iSAM2 inside (a reference): its factors, and updates that remove factors."""
+        return self.smoother.getISAM2()
+
+    def estimate(self) -> gtsam.Values:
+        return self.isam.calculateBestEstimate()
 
 
 class ValuesSource:
