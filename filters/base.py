@@ -154,6 +154,7 @@ class FilterEstimator(Estimator):
         self._own = set(super().channels_used(drive))
         #: Last sample of each odometry channel seen (a filter that needs a start), and when its track was lost.
         self._last_odometry_s = {}
+        self._oldest_odometry_s = math.inf
         self._lost_s: float | None = None
         self._bridged = dict(_BRIDGED_FIELDS) if drive.has_accelerometers else {}
         self._t = -math.inf
@@ -194,9 +195,12 @@ class FilterEstimator(Estimator):
         if not self.needs_start:
             return True
         last = self._last_odometry_s
-        silent_since = min((t for t in last.values() if t_s - t > MAX_ODOMETRY_GAP_S), default=None)
+        # the oldest channel is silent if any is (t_s - t is monotone in t, also in floating point)
+        oldest = self._oldest_odometry_s
+        silent_since = oldest if t_s - oldest > MAX_ODOMETRY_GAP_S else None
         if kind in _ODOMETRY_CHANNELS and kind in self._own:
             last[kind] = t_s
+            self._oldest_odometry_s = min(last.values())
         if silent_since is not None and self._lost_s is None:
             if self._pending:
                 self._flush_scan()
@@ -204,7 +208,7 @@ class FilterEstimator(Estimator):
             self._lost_s = silent_since
         if self._lost_s is None or self._started:
             return True
-        if any(t_s - t > MAX_ODOMETRY_GAP_S for t in last.values()):
+        if t_s - self._oldest_odometry_s > MAX_ODOMETRY_GAP_S:
             return False
         self.diagnostics["odometry_gaps"].append({"from_s": self._lost_s, "to_s": t_s, "restart": None})
         self._ignition = self._new_ignition(self._drive, None)
@@ -417,8 +421,9 @@ class FilterEstimator(Estimator):
             elif name in _FIX_CHANNELS:
                 cols.append((ch.t_s.tolist(), list(zip(*(ch[c].tolist() for c in _FIX_CHANNELS[name])))))
             elif name == "rfid":
-                d, s, _ = ranges_by_field(self._range_models, ch)
-                cols.append((ch.t_s.tolist(), ch.arrival_s.tolist(), ch.tag_id.astype(np.int64).tolist(), d, s))
+                # ranges of the whole channel at once, or per scan when only ignition reads them (a few scans)
+                d, s, _ = ranges_by_field(self._range_models, ch) if name in self._own else (None, None, None)
+                cols.append((ch.t_s.tolist(), ch.arrival_s.tolist(), ch.tag_id.astype(np.int64).tolist(), d, s, ch))
             else:
                 cols.append(None)
         n_events = len(code)
@@ -466,13 +471,17 @@ class FilterEstimator(Estimator):
                 t = self._advance(ts[r])
                 self._on_fix(t, kind, vals[r])
             elif kind == "rfid":
-                ts, arr, ids, d, s = cols[c]
+                ts, arr, ids, d, s, ch = cols[c]
                 j = i + 1
                 key_r = (ts[r], arr[r])
                 while j < n_events and code[j] == c and (ts[row[j]], arr[row[j]]) == key_r:
                     j += 1
                 rr = row[i:j]
-                self._scan(ts[r], arr[r], [ids[k] for k in rr], d[rr], s[rr])
+                if d is None:
+                    d_rr, s_rr, _ = ranges_by_field(self._range_models, ch.select(np.array(rr)))
+                else:
+                    d_rr, s_rr = d[rr], s[rr]
+                self._scan(ts[r], arr[r], [ids[k] for k in rr], d_rr, s_rr)
                 i = j
                 continue
             i += 1

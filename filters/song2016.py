@@ -268,17 +268,21 @@ def _accel_psd(cfg: VehicleFilterConfig, has_accel: bool) -> float:
 
 
 class _InputHold:
-    """The IMU input held between samples (zero-order hold) and the model it drives."""
+    """The IMU input held between samples (zero-order hold) and the model it drives.
+
+    ``u`` is the tuple ``(a_x, a_y, w_z)`` of floats (zeros for the
+    accelerations of a sample without them).
+    """
 
     def __init__(self, cfg: VehicleFilterConfig):
         self.cfg = cfg
-        self.u = np.zeros(3)
+        self.u = (0.0, 0.0, 0.0)
         self.has_accel = True
         self._q_cache: dict[tuple[float, bool], np.ndarray] = {}
 
     def set(self, accel_x: float, accel_y: float, yaw_rate: float) -> None:
         self.has_accel = accel_x == accel_x and accel_y == accel_y  # not NaN
-        self.u = np.array([accel_x, accel_y, yaw_rate]) if self.has_accel else np.array([0.0, 0.0, yaw_rate])
+        self.u = (accel_x, accel_y, yaw_rate) if self.has_accel else (0.0, 0.0, yaw_rate)
 
     def psd(self) -> float:
         return _accel_psd(self.cfg, self.has_accel)
@@ -645,7 +649,7 @@ class _FusionInterval:
 
     def __init__(self):
         self.dt_s: list[float] = []
-        self.u: list[np.ndarray] = []
+        self.u: list[tuple[float, float, float]] = []
         self.has_accel: list[bool] = []
         self.wheel_at: list[int] = []
         self.wheel_mps: list[float] = []

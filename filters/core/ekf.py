@@ -25,8 +25,12 @@ class Update(NamedTuple):
 
 
 def predict(x_next: np.ndarray, F: np.ndarray, P: np.ndarray, Q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Time update, song2016 eq. 11-12: ``x = f(x)`` (given), ``P = F P F^T + Q``."""
-    return x_next, F @ P @ F.T + Q
+    """Time update, song2016 eq. 11-12: ``x = f(x)`` (given), ``P = F P F^T + Q``.
+
+    ``ndarray.dot`` rather than ``@``: on these tiny matrices it has half the
+    call overhead (so too in :func:`update`).
+    """
+    return x_next, F.dot(P).dot(F.T) + Q
 
 
 def update(
@@ -61,20 +65,25 @@ def update(
     diagonal R (given as a vector) the rows are applied one at a time with
     the same linearisation (innovation ``nu_i - H_i (x_post - x)``), which
     is algebraically the joint update and needs no matrix inverse.
+    (Applying the 100 Hz wheel speed and its sideways pseudo-measurement
+    jointly would be cheaper, but a gyro-only dead reckoning amplifies
+    rounding differences exponentially: on Plaza1 the joint form's 1e-15
+    moved ``dr`` to a 30 m RMS error from 2 m.)
     """
     nu = residual(z, z_pred) if residual is not None else z - z_pred
     nu = np.atleast_1d(nu)
-    if np.ndim(R) == 1 or nu.shape[0] == 1:
-        r = np.diag(R) if np.ndim(R) == 2 else np.ravel(R)
+    r_ndim = np.ndim(R)
+    if r_ndim == 1 or nu.shape[0] == 1:
+        r = (np.diag(R) if r_ndim == 2 else np.ravel(R)).tolist()
+        nu_l = nu.tolist()
         x_new, P_new, nis = x, P, 0.0
-        for i in range(nu.shape[0]):
-            h = H[i]
-            PHt = P_new @ h
-            s = float(h @ PHt) + float(r[i])
+        for i, h in enumerate(H):
+            PHt = P_new.dot(h)
+            s = float(h.dot(PHt)) + r[i]
             k = PHt / s
-            nu_i = float(nu[i]) if i == 0 else float(nu[i] - h @ (x_new - x))
+            nu_i = nu_l[i] if i == 0 else float(nu[i] - h.dot(x_new - x))
             x_new = x_new + k * nu_i
-            P_new = P_new - k[:, None] * PHt
+            P_new = P_new - np.multiply.outer(k, PHt)
             nis += nu_i * nu_i / s
         return Update(x_new, P_new, nis)
     PHt = P @ H.T

@@ -57,8 +57,8 @@ def fuse(
         for i in angle_states:
             d[i] = wrap_angle(float(d[i]))
         K = np.linalg.solve(P_g + P, P_g).T  # P_g (P_g + P)^-1, both symmetric
-        x_g = x_g + K @ d
-        P_g = P_g - K @ P_g
+        x_g = x_g + K.dot(d)
+        P_g = P_g - K.dot(P_g)
     for i in angle_states:
         x_g[i] = wrap_angle(float(x_g[i]))
     return x_g, 0.5 * (P_g + P_g.T)

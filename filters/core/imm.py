@@ -25,8 +25,8 @@ def validate_markov(matrix: np.ndarray) -> np.ndarray:
 def _spread(x: np.ndarray, ref: np.ndarray, angle_states: Sequence[int]) -> np.ndarray:
     """``x - ref`` with angle entries wrapped (broadcasting)."""
     d = x - ref
-    if angle_states:
-        d[..., angle_states] = wrap_angle(d[..., angle_states])
+    for i in angle_states:
+        d[..., i] = wrap_angle(d[..., i])
     return d
 
 
@@ -37,8 +37,8 @@ def _weighted_moments(
     ``P_i = sum_j w_ji (P_j + (x_j - x_i)(x_j - x_i)^T)``, angles on the circle."""
     ref = X[0]
     x = ref + weights.T @ _spread(X, ref, angle_states)  # (i, n)
-    if angle_states:
-        x[:, angle_states] = wrap_angle(x[:, angle_states])
+    for i in angle_states:
+        x[:, i] = wrap_angle(x[:, i])
     d = _spread(X[:, None, :], x[None, :, :], angle_states)  # (j, i, n)
     spread = np.einsum("ji,jia,jib->iab", weights, d, d)
     return x, np.einsum("ji,jab->iab", weights, P) + spread

@@ -154,8 +154,8 @@ def step(
     (``tests/filters/test_song2014.py``).
     """
     g = z[None, :] - z_pred
-    if angle_rows is not None and len(angle_rows):
-        g[:, angle_rows] = wrap_angle(g[:, angle_rows])
+    for i in () if angle_rows is None else angle_rows:
+        g[:, i] = wrap_angle(g[:, i])
     At = np.swapaxes(A, 1, 2)
     APA = A @ P @ At
     if config.enabled:

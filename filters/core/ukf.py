@@ -9,6 +9,8 @@ filterpy's ``MerweScaledSigmaPoints`` / ``UnscentedKalmanFilter`` implement
 * ``P = P_prior - K P_zz K^T`` (eq. 33 prints ``+``, a misprint);
 * angle components (yaw) averaged on the circle and their residuals wrapped.
 
+Products are ``ndarray.dot`` (cheaper than ``@`` on these small matrices).
+
 The update draws its sigma points from the current mean and covariance
 (the prior including Q), as filterpy does, so consecutive updates at one
 time (wheel speed and compass) are handled alike.
@@ -61,7 +63,7 @@ class MerweScaledSigmaPoints:
 
 
 def _mean(points: np.ndarray, Wm: np.ndarray, angles: Sequence[int]) -> np.ndarray:
-    m = Wm @ points
+    m = Wm.dot(points)
     for i in angles:
         m[i] = circular_mean(points[:, i], Wm)
     return m
@@ -131,7 +133,7 @@ class UnscentedKalmanFilter:
         """
         x = _mean(points, self.points.Wm, self.angle_states)
         d = _deviations(points, x, self.angle_states)
-        self.P = d.T @ (self.points.Wc[:, None] * d) + Q
+        self.P = d.T.dot(self.points.Wc[:, None] * d) + Q
         for i in self.angle_states:
             x[i] = wrap_angle(float(x[i]))
         self.x = x
@@ -197,7 +199,7 @@ class UnscentedKalmanFilter:
         z = np.atleast_1d(np.asarray(z, dtype=np.float64))
         z_mean = _mean(Z, Wm, angle_measurements)
         dz = _deviations(Z, z_mean, angle_measurements)
-        Pzz = dz.T @ (Wc[:, None] * dz)
+        Pzz = dz.T.dot(Wc[:, None] * dz)
         if np.ndim(R) == 1:
             Pzz.flat[:: Pzz.shape[0] + 1] += R
         else:
@@ -214,12 +216,12 @@ class UnscentedKalmanFilter:
                 Pzz = Pzz[np.ix_(accepted, accepted)]
         else:
             accepted = np.ones(nu.shape[0], dtype=bool)
-        Pxz = dx.T @ (Wc[:, None] * dz)
+        Pxz = dx.T.dot(Wc[:, None] * dz)
         Pzz_inv = _inverse(Pzz)
-        K = Pxz @ Pzz_inv
-        x = self.x + K @ nu
+        K = Pxz.dot(Pzz_inv)
+        x = self.x + K.dot(nu)
         for i in self.angle_states:
             x[i] = wrap_angle(float(x[i]))
-        P = self.P - K @ Pzz @ K.T
+        P = self.P - K.dot(Pzz).dot(K.T)
         self.x, self.P = x, 0.5 * (P + P.T)
-        return float(nu @ Pzz_inv @ nu), accepted
+        return float(nu.dot(Pzz_inv).dot(nu)), accepted

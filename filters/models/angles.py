@@ -35,7 +35,7 @@ def circular_mean(angles_rad: np.ndarray, weights: np.ndarray, axis: int = 0) ->
     transform's centre weight often is).
     """
     if axis == 0 and np.ndim(angles_rad) == 1:
-        return np.arctan2(weights @ np.sin(angles_rad), weights @ np.cos(angles_rad))
+        return np.arctan2(weights.dot(np.sin(angles_rad)), weights.dot(np.cos(angles_rad)))
     s = np.tensordot(weights, np.sin(angles_rad), axes=(0, axis))
     c = np.tensordot(weights, np.cos(angles_rad), axes=(0, axis))
     return np.arctan2(s, c)

@@ -90,7 +90,7 @@ def body_velocity(x: np.ndarray, jacobian: bool = True):
     """
     x = np.asarray(x, dtype=np.float64)
     if x.ndim == 1:  # one state: plain floats (the EKFs' hot path)
-        yaw, ve, vn = float(x[YAW]), float(x[VE]), float(x[VN])
+        ve, vn, yaw = x[VE : YAW + 1].tolist()
         c, s = math.cos(yaw), math.sin(yaw)
         v = np.array([ve * c + vn * s, -ve * s + vn * c])
     else:

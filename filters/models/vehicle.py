@@ -64,14 +64,14 @@ def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = 
     ax, ay, wz = float(u[0]), float(u[1]), float(u[2])
     half_t2 = 0.5 * dt_s * dt_s
     if x.ndim == 1:  # one state: plain floats (the EKFs' hot path)
-        yaw = float(x[YAW])
+        pe, pn, ve, vn, yaw = x[:5].tolist()
         c, s = math.cos(yaw), math.sin(yaw)
         a_e, a_n = ax * c - ay * s, ax * s + ay * c
         out = x.copy()
-        out[PE] += x[VE] * dt_s + half_t2 * a_e
-        out[PN] += x[VN] * dt_s + half_t2 * a_n
-        out[VE] += a_e * dt_s
-        out[VN] += a_n * dt_s
+        out[PE] = pe + (ve * dt_s + half_t2 * a_e)
+        out[PN] = pn + (vn * dt_s + half_t2 * a_n)
+        out[VE] = ve + a_e * dt_s
+        out[VN] = vn + a_n * dt_s
         out[YAW] = yaw + wz * dt_s
     else:
         yaw = x[..., YAW]
@@ -89,16 +89,16 @@ def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = 
         raise ValueError("Jacobians are computed for a single state")
     F = _identity(x.shape[0])
     F[PE, VE] = F[PN, VN] = dt_s
-    # d a_e / d psi = -a_n, d a_n / d psi = a_e
+    # d a_e / d psi = -a_n, d a_n / d psi = a_e (scalar stores: the cheapest way to fill these small arrays)
     F[PE, YAW] = -half_t2 * a_n
     F[PN, YAW] = half_t2 * a_e
     F[VE, YAW] = -dt_s * a_n
     F[VN, YAW] = dt_s * a_e
     G = np.zeros((x.shape[0], 3))
-    G[PE, :2] = half_t2 * c, -half_t2 * s
-    G[PN, :2] = half_t2 * s, half_t2 * c
-    G[VE, :2] = dt_s * c, -dt_s * s
-    G[VN, :2] = dt_s * s, dt_s * c
+    G[PE, 0], G[PE, 1] = half_t2 * c, -half_t2 * s
+    G[PN, 0], G[PN, 1] = half_t2 * s, half_t2 * c
+    G[VE, 0], G[VE, 1] = dt_s * c, -dt_s * s
+    G[VN, 0], G[VN, 1] = dt_s * s, dt_s * c
     G[YAW, 2] = dt_s
     return out, (F, G)
 
