@@ -410,8 +410,9 @@ class GraphBatch(_GraphEstimator):
     merge_by = "t"
 
     def _builder_options(self) -> dict[str, Any]:
-        # offline no reading is late (merge_by = "t"), so the whole window may take the held track
-        return {"max_delay_s": math.inf, "release_window_s": self.config.isam2_window_s - 1.0 / self.config.keyframe_rate_hz}
+        # the whole held track is released, whatever the window (the seeding smoother marginalises what is
+        # older at once): cut to the window, graph-batch on MRCLAM robot 1 ended at 1.13 m RMS instead of 0.36 m
+        return {"max_delay_s": math.inf}
 
     def process(self, measurement: Measurement) -> list[OutputRow]:
         m = measurement if measurement.arrival_s == measurement.t_s else measurement._replace(arrival_s=measurement.t_s)
@@ -495,7 +496,7 @@ class GraphBatch(_GraphEstimator):
         if not self.builder.started:
             return self._estimate([])
         try:
-            # the window's estimate, and before it the causal states: a start for Levenberg-Marquardt
+            # the smoother's estimate (the marginalised keyframes as they left its window): a start for Levenberg-Marquardt
             initial = self.builder.history_values(self.smoother.estimate())
         except RuntimeError as exc:
             raise gtsam_error(exc, f"{self.name}: initial estimate") from None

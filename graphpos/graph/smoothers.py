@@ -163,6 +163,21 @@ class WindowedIsam2Smoother(FixedLagSmoother):
 
     def __init__(self, model_name: str, window_s: float):
         super().__init__(model_name, window_s, marginalise_every_s=WINDOW_MARGINALISE_SHARE * window_s)
+        self._stamps: dict[int, float] = {}  # every key in the window, and the stamp GTSAM has for it
+        self._left = gtsam.Values()  # every key marginalised, as estimated just before it left
+
+    def update(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: dict[int, float], extra_iterations: int = 0) -> None:
+        cutoff_s = self.cutoff_s(timestamps)
+        leaving = {key for key, stamp in self._stamps.items() if stamp < cutoff_s}
+        if leaving:
+            kept = self.isam.calculateBestEstimate()
+            for key in [key for key in kept.keys() if key not in leaving]:
+                kept.erase(key)
+            self._left.insert(kept)
+            for key in leaving:
+                del self._stamps[key]
+        self._stamps.update({key: self.stamp(t_s) for key, t_s in timestamps.items()})
+        super().update(factors, values, timestamps, extra_iterations)
 
     @property
     def isam(self) -> gtsam.ISAM2:
@@ -170,7 +185,13 @@ class WindowedIsam2Smoother(FixedLagSmoother):
         return self.smoother.getISAM2()
 
     def estimate(self) -> gtsam.Values:
-        return self.isam.calculateBestEstimate()
+        """Every variable held so far: the window's (fully back-substituted), and each marginalised one as it
+        was estimated just before it left, 1-1.1 windows after its time: a smoothed value, for the whole
+        drive's solves (learning, ``final``, graph-batch) to start from. Variables marginalised in the very
+        update that added them (a start-up backlog longer than the window) are not kept."""
+        values = self.isam.calculateBestEstimate()
+        values.insert(self._left)
+        return values
 
 
 class ValuesSource:

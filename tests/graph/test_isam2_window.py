@@ -44,6 +44,9 @@ def test_the_isam2_holds_only_its_window(drive):
     poses = [k for k in theta.keys() if chr(gtsam.Symbol(k).chr()) == "x"]
     assert out.diagnostics["keyframes"] > 700
     assert 0 < len(poses) <= (WINDOW_S + est.smoother.marginalise_every_s) * config.keyframe_rate_hz + 1
+    # its estimate still has every keyframe: the marginalised ones as they were when they left
+    held = est.smoother.estimate()
+    assert all(held.exists(est.model.pose_key(k)) for k in range(out.diagnostics["keyframes"]))
     fixed_lag = ESTIMATORS["graph-fixed-lag"](config).run(drive)
     assert _gap_m(out, fixed_lag) < 1e-6
 
