@@ -715,9 +715,10 @@ class GraphBuilder:
     def history_values(self, recent: gtsam.Values) -> gtsam.Values:
         """Values of every variable of :meth:`graph`: ``recent``'s, else the causal ones.
 
-        ``recent`` is a windowed smoother's estimate; the variables it has
-        marginalised take the state read at their keyframe's update
-        (:attr:`states`) and the landmarks their map position.
+        ``recent`` is a windowed smoother's estimate (its window, and what it
+        marginalised as it left); variables it never held (marginalised on
+        arrival) take the state read at their keyframe's update
+        (:attr:`states`), landmarks their map position.
         """
         values = gtsam.Values(recent)
         for k in sorted(self.states):

@@ -124,8 +124,8 @@ class GraphConfig:
         once per ``smoothers.MARGINALISE_EVERY_S`` (1 s), so the window
         holds between ``fixed_lag_s`` and ``fixed_lag_s`` + 1 s.
     isam2_window_s : float
-        ``graph-isam2`` keeps the keyframes of this many seconds in its
-        iSAM2; older ones are marginalised (their information stays as a
+        ``graph-isam2`` (and ``graph-batch``'s seeding pass) keeps the
+        keyframes of this many seconds in its iSAM2; older ones are marginalised (their information stays as a
         prior on the rest), so its per-update cost stays flat on long drives
         (:class:`~graphpos.graph.smoothers.WindowedIsam2Smoother`). Its causal
         output is the same as with the whole history wherever readings

@@ -293,10 +293,10 @@ class GraphIsam2(_GraphEstimator):
             recent = self.smoother.estimate()
         except RuntimeError as exc:
             raise gtsam_error(exc, what) from None
-        # the whole drive's factors (iSAM2 holds only its window's) from the
-        # window's estimate and, before it, the causal states: iSAM2
-        # relinearises only variables that moved past their thresholds, so
-        # even within the window a warm Levenberg-Marquardt pass finishes it
+        # the whole drive's factors (iSAM2 holds only its window's), from the
+        # smoother's estimate: iSAM2 relinearises only variables that moved
+        # past their thresholds, so even within the window a warm
+        # Levenberg-Marquardt pass finishes it
         graph = self.builder.graph()
         values = optimise(graph, self.builder.history_values(recent), self.config, what)
         covs = None
