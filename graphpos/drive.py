@@ -75,13 +75,17 @@ CHANNEL_SPECS: dict[str, tuple[ColumnSpec, ...]] = {
     "compass": (_T, ColumnSpec("yaw_rad", -4 * np.pi, 4 * np.pi)),
     # One row per tag reading. rss is 0-255 where the radio reports it,
     # range_m where it reports a range; true_range_m only in simulation;
-    # arrival_s is when the reading reached the computer (>= t_s).
+    # bearing_rad (counter-clockwise from the body x axis) where the sensor
+    # reports one, as a camera does: the sensor profile corrects ranges
+    # whose error depends on it; arrival_s is when the reading reached the
+    # computer (>= t_s).
     "rfid": (
         _T,
         ColumnSpec("tag_id", 0, 2**53, integer=True),
         ColumnSpec("rss", 0.0, 255.0, required=False),
         ColumnSpec("range_m", 0.0, 1e4, required=False),
         ColumnSpec("true_range_m", 0.0, 1e4, required=False),
+        ColumnSpec("bearing_rad", -np.pi, np.pi, required=False),
         _ARRIVAL,
     ),
     # One row per roadside-unit reading: a position fix (east_m, north_m) or

@@ -13,8 +13,10 @@ state vectors stay as printed:
 - yaw rate: ``(reading - gyro_bias_radps) / yaw_rate_scale``
   (``reading = yaw_rate_scale * true + gyro_bias_radps``);
 - wheel speed: ``reading / wheel_scale``;
-- reported ranges (``rfid.range_m``): ``(reading - range_offset_m) / range_scale``,
-  with 1-sigma ``range_sigma0_m + range_sigma_slope * distance``
+- reported ranges (``rfid.range_m``):
+  ``(reading - range_bearing2_m_per_rad2 * bearing^2 - range_offset_m) / range_scale``
+  (the bearing term only where the reading has a ``bearing_rad``, as a
+  camera's has), with 1-sigma ``range_sigma0_m + range_sigma_slope * distance``
   (:meth:`SensorProfile.range_model`). RSS readings are left to their RSS
   model (itself a calibration).
 
@@ -48,6 +50,7 @@ _LIMITS = {
     "wheel_scale": (0.5, 2.0),
     "range_scale": (0.5, 2.0),
     "range_offset_m": (-10.0, 10.0),
+    "range_bearing2_m_per_rad2": (-10.0, 10.0),
 }
 
 
@@ -63,6 +66,10 @@ class SensorProfile:
         The wheel speed.
     range_scale, range_offset_m : float
         Reported ranges.
+    range_bearing2_m_per_rad2 : float
+        Reported ranges' error per squared bearing (m/rad^2), for readings
+        with a bearing (a camera's range from a landmark's image, whose error
+        grows towards the image's edges: MRCLAM's, :mod:`graphpos.io.mrclam`).
     range_sigma0_m, range_sigma_slope : float or None
         1-sigma of a corrected range at zero distance and its growth per
         metre; None: the drive's default range model's.
@@ -84,6 +91,7 @@ class SensorProfile:
     wheel_scale: float = 1.0
     range_scale: float = 1.0
     range_offset_m: float = 0.0
+    range_bearing2_m_per_rad2: float = 0.0
     range_sigma0_m: float | None = None
     range_sigma_slope: float | None = None
     range_sigma_scale: float | None = None
@@ -122,8 +130,11 @@ class SensorProfile:
             return {"yaw_rate_radps": (columns["yaw_rate_radps"] - self.gyro_bias_radps) / self.yaw_rate_scale}
         if channel == "wheel" and self.wheel_scale != 1.0:
             return {"speed_mps": columns["speed_mps"] / self.wheel_scale}
-        if channel == "rfid" and (self.range_scale != 1.0 or self.range_offset_m != 0.0):
+        if channel == "rfid" and (self.range_scale != 1.0 or self.range_offset_m != 0.0 or self.range_bearing2_m_per_rad2 != 0.0):
             range_m = columns["range_m"]
+            bearing = columns.get("bearing_rad")
+            if self.range_bearing2_m_per_rad2 != 0.0 and bearing is not None:
+                range_m = range_m - self.range_bearing2_m_per_rad2 * np.where(np.isfinite(bearing), bearing, 0.0) ** 2
             corrected = np.maximum((range_m - self.range_offset_m) / self.range_scale, 0.0)
             return {"range_m": np.where(np.isfinite(range_m), corrected, np.nan)}
         return {}
@@ -160,6 +171,7 @@ class SensorProfile:
             wheel_scale=self.wheel_scale * later.wheel_scale,
             range_scale=self.range_scale * later.range_scale,
             range_offset_m=self.range_offset_m + self.range_scale * later.range_offset_m,
+            range_bearing2_m_per_rad2=self.range_bearing2_m_per_rad2 + self.range_scale * later.range_bearing2_m_per_rad2,
         )
 
     # -- files ----------------------------------------------------------------------

@@ -240,3 +240,41 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
                       range_sigma_scale=float(math.sqrt((1 + rho) / (1 - rho))))
     return SensorProfile(**fields, source={"drive": drive_name, "estimator": "graph-batch", "windows": int(T.size),
                                            "turned_rad": turned})
+
+
+#: Readings with a bearing needed to fit the bearing term, and the spread of bearing^2 (rad^2) it needs.
+MIN_BEARING_READINGS = 200
+MIN_BEARING2_SPREAD_RAD2 = 0.01
+#: Residuals beyond this are left out of the bearing fit (outliers, wrong landmark), m.
+BEARING_FIT_MAX_RESIDUAL_M = 1.0
+
+
+def fit_bearing_range_term(drive, estimate, range_scale: float) -> tuple[float, float, float] | None:
+    """Offset, bearing^2 coefficient and sigma of a camera's ranges about a solved track (no truth).
+
+    A range measured from a landmark's image reads off by an amount that
+    grows with the landmark's bearing in the image (MRCLAM's camera:
+    ``reading = range_scale * d + c0 + c2 * bearing^2``, c2 -1.0 to -1.7
+    m/rad^2 on Dataset 6's robots, :mod:`graphpos.io.mrclam`). The raw
+    readings that carry a ``bearing_rad`` are compared with the distances
+    from the track ``estimate`` (interpolated to each reading's time) and
+    ``[c0, c2]`` is fitted by Huber regression. Returns ``(c0, c2, sigma)``
+    in reading units, or None when the drive has too few such readings, or
+    bearings too alike to tell the term from the offset.
+    """
+    if not drive.reports_ranges or estimate.t_s.size < 2:
+        return None
+    rfid = drive.channels["rfid"]
+    bearing = rfid.bearing_rad
+    inside = np.isfinite(bearing) & np.isfinite(rfid.range_m) & (rfid.t_s >= estimate.t_s[0]) & (rfid.t_s <= estimate.t_s[-1])
+    if inside.sum() < MIN_BEARING_READINGS:
+        return None
+    t, b, reading = rfid.t_s[inside], bearing[inside], rfid.range_m[inside]
+    marks = drive.tags.positions(rfid.tag_id[inside])
+    dist = np.hypot(np.interp(t, estimate.t_s, estimate.east_m) - marks[:, 0], np.interp(t, estimate.t_s, estimate.north_m) - marks[:, 1])
+    residual = reading - range_scale * dist
+    ok = np.abs(residual - np.median(residual)) < BEARING_FIT_MAX_RESIDUAL_M
+    if ok.sum() < MIN_BEARING_READINGS or float(np.std(b[ok] ** 2)) < MIN_BEARING2_SPREAD_RAD2:
+        return None
+    (c0, c2), left = _huber_lstsq(np.column_stack([np.ones(ok.sum()), b[ok] ** 2]), residual[ok])
+    return float(c0), float(c2), 1.4826 * float(np.median(np.abs(left - np.median(left))))

@@ -30,7 +30,8 @@ against Dataset 6 (see ``tests/io/test_mrclam.py``):
     ``Landmark_Groundtruth.dat`` is a landmark sighting; sightings of other
     robots (subjects 1-5), of barcodes ``Barcodes.dat`` does not list and of
     subjects without a surveyed position are dropped and counted in the
-    drive's ``params``. The bearing is not imported (no channel holds one).
+    drive's ``params``. The bearing is kept (``bearing_rad``) for the sensor
+    profile's bearing-dependent range term.
     Dataset 6's ranges minus the truth-derived distances: median -0.02 to
     +0.07 m, robust sigma 0.08-0.18 m per robot. Most of that error is a
     function of the landmark's bearing ``b`` in the camera image:
@@ -38,7 +39,9 @@ against Dataset 6 (see ``tests/io/test_mrclam.py``):
     -1.9 m/rad^2 on all five robots, and fitted it leaves an RMS of
     0.06-0.08 m instead of 0.12-0.19 m. As the bearing changes slowly, a
     range-only estimator sees it as errors correlated over seconds (lag-1
-    correlation of a landmark's errors 0.5-0.7 at 1 s). Not corrected.
+    correlation of a landmark's errors 0.5-0.7 at 1 s). graph-batch's
+    self-calibration fits ``c2`` from the drive itself
+    (:func:`graphpos.graph.calibration.fit_bearing_range_term`).
 ``RobotN_Groundtruth.dat`` ``t_s x_m y_m theta_rad``
     Vicon poses at about 60 Hz; theta is counter-clockwise from x and agrees
     with the direction of motion. Taking x as east and y as north, it is the
@@ -316,6 +319,7 @@ def import_mrclam(directory: str | os.PathLike, robot: int, origin: GeoOrigin = 
                 "rss": np.full(t_rfid.size, np.nan),
                 "range_m": sightings.column("range_m"),
                 "true_range_m": _true_ranges(t_rfid, tags.positions(tag_id), truth),
+                "bearing_rad": sightings.column("bearing_rad"),
             }),
             "truth": truth,
         }

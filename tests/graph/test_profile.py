@@ -39,6 +39,19 @@ def test_corrections_follow_the_stated_formulas(biased_drive):
     np.testing.assert_allclose(q.correct(c).imu.yaw_rate_radps, p.combined(q).correct(biased_drive).imu.yaw_rate_radps)
 
 
+def test_bearing_term_corrects_only_readings_with_a_bearing(biased_drive):
+    rfid = biased_drive.rfid
+    bearing = np.where(np.arange(len(rfid)) % 2 == 0, np.linspace(-0.5, 0.5, len(rfid)), np.nan)
+    drive = biased_drive.replace(channels={**biased_drive.channels, "rfid": rfid.replace(bearing_rad=bearing)})
+    p = SensorProfile(range_scale=1.05, range_offset_m=0.1, range_bearing2_m_per_rad2=-1.5)
+    expected = (rfid.range_m - (-1.5) * np.where(np.isfinite(bearing), bearing, 0.0) ** 2 - 0.1) / 1.05
+    np.testing.assert_allclose(p.correct(drive).rfid.range_m, np.maximum(expected, 0.0))
+    q = SensorProfile(range_scale=0.98, range_offset_m=-0.05, range_bearing2_m_per_rad2=0.3)
+    np.testing.assert_allclose(q.correct(p.correct(drive)).rfid.range_m, p.combined(q).correct(drive).rfid.range_m)
+    row = {"t_s": 1.0, "tag_id": 3.0, "range_m": 4.0, "bearing_rad": 0.4}
+    assert p.corrected_values("rfid", row)["range_m"] == pytest.approx((4.0 + 1.5 * 0.16 - 0.1) / 1.05)
+
+
 def test_profile_file_round_trip_and_refusals(tmp_path):
     p = SensorProfile(gyro_bias_radps=0.001, range_scale=1.07, range_sigma0_m=0.5, source={"drive": "x"})
     p.save(tmp_path / "p.json")

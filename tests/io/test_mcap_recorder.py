@@ -423,7 +423,7 @@ def test_one_row_encoders_are_the_batch_writers(tmp_path, drive, estimate):
 
 def test_one_row_encoding_rules():
     row = encode_row("rfid", {"t_s": 0.1, "tag_id": 7.0, "rss": float("nan"), "range_m": float("inf")})
-    assert row == b'{"t_s":0.1,"tag_id":7,"rss":null,"range_m":1e999,"true_range_m":null,"arrival_s":0.1}'
+    assert row == b'{"t_s":0.1,"tag_id":7,"rss":null,"range_m":1e999,"true_range_m":null,"bearing_rad":null,"arrival_s":0.1}'
     assert encode_row("rfid", {"t_s": 0.1, "tag_id": 7.5}).startswith(b'{"t_s":0.1,"tag_id":7.5,')  # never rounded
     with pytest.raises(DriveError, match="missing required column 'tag_id'"):
         encode_row("rfid", {"t_s": 0.1})

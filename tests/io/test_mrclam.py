@@ -117,6 +117,7 @@ def test_synthetic_columns(tmp_path):
     rfid = drive.rfid
     assert len(rfid) == 118 and set(rfid.tag_id.tolist()) == {6, 7, 8}
     assert np.all(np.isnan(rfid.rss))
+    assert np.all(rfid.bearing_rad == 0.1)  # the camera's bearing, kept for the profile's bearing-dependent range term
     inside = rfid.t_s <= truth.t_s[-1]
     assert np.allclose(rfid.range_m[inside], rfid.true_range_m[inside], atol=1e-5)
     assert np.all(np.isnan(rfid.true_range_m[~inside])) and (~inside).sum() == 10
