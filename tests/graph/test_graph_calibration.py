@@ -151,3 +151,44 @@ def test_accuracy_against_the_best_song2016_filter(scenario):
     best = min(np.mean(rms_of["fusion-ekf"]), np.mean(rms_of["fukf"]))
     assert np.mean(rms_of["graph-isam2"]) <= best
     assert np.mean(rms_of["graph-batch"]) <= 0.6 * best
+
+
+def _windowed(rate_error_radps: np.ndarray, dt_s: float, window_s: float = 2.0) -> tuple[np.ndarray, np.ndarray]:
+    """Heading errors summed over consecutive windows, and the windows' lengths."""
+    per = int(round(window_s / dt_s))
+    n = rate_error_radps.size // per
+    return rate_error_radps[: n * per].reshape(n, per).sum(1) * dt_s, np.full(n, window_s)
+
+
+def test_noise_fit_recovers_a_random_walk_density():
+    """White rate noise of density q: the heading error's variance is q^2 T at every horizon, and the fit finds q."""
+    from graphpos.graph.calibration import _noise_fit
+
+    rng = np.random.default_rng(3)
+    dt, q = 0.1, 0.02
+    residual, T = _windowed(rng.normal(0.0, q / np.sqrt(dt), 9000), dt)
+    heading_var, turn_var = _noise_fit(residual, T, np.zeros(T.size))
+    assert np.sqrt(heading_var) == pytest.approx(q, rel=0.15)
+    assert turn_var == 0.0
+
+
+def test_noise_fit_sees_an_error_that_persists():
+    """A rate error correlated over 30 s (first-order Gauss-Markov) hardly shows in 2-s windows.
+
+    Its heading error over a horizon grows faster than a random walk's; the
+    fit over horizons up to a minute gives a density at least twice the one
+    the 2-s windows alone give (what ``fit_profile`` used before).
+    """
+    from graphpos.graph.calibration import _noise_fit
+
+    rng = np.random.default_rng(4)
+    dt, tau, sigma = 0.1, 30.0, 0.01
+    phi = np.exp(-dt / tau)
+    drive = rng.normal(0.0, sigma * np.sqrt(1 - phi**2), 9000)
+    rate = np.zeros(drive.size)
+    for i in range(1, rate.size):
+        rate[i] = phi * rate[i - 1] + drive[i]
+    residual, T = _windowed(rate + rng.normal(0.0, 0.005 / np.sqrt(dt), rate.size), dt)
+    multi, _ = _noise_fit(residual, T, np.zeros(T.size))
+    short = np.mean(residual[residual**2 <= np.quantile(residual**2, 0.95)] ** 2) / 0.73 / 2.0
+    assert np.sqrt(multi) > 2.0 * np.sqrt(short)
