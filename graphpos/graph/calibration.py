@@ -154,7 +154,7 @@ def _noise_fit(residual: np.ndarray, T: np.ndarray, motion: np.ndarray) -> tuple
     about the truth, the 30-s ones four fifths), and an error that
     persists (commanded rather than measured turn rates) grows faster
     than a random walk: fitted to 2-s windows alone, the heading noise
-    left graph-batch's covariances 6-23 times too small there.
+    left graph-batch's ANEES at 6-23 there (2 when consistent).
 
     Squared residuals are heavy-tailed; each horizon's fit keeps those
     under its 95th percentile and the trimmed mean is corrected by a
