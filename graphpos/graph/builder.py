@@ -200,6 +200,7 @@ class GraphBuilder:
         self.landmark_lifetime_s = landmark_lifetime_s
         self.keep_history = keep_history
         self.range_scale = range_scale
+        self.range_offset_m = 0.0  # subtracted from recorded readings when the graph is rebuilt (graph-batch's offset search)
         self.initial_pose = initial_pose
         self.release_window_s = release_window_s
         self.period_s = 1.0 / config.keyframe_rate_hz
@@ -691,19 +692,21 @@ class GraphBuilder:
             if np.isfinite(s):
                 r.sigma_m = float(s)
 
-    def range_factor(self, record: RangeRecord, scale: float):
-        """Rebuild a recorded range factor for another range scale."""
+    def range_factor(self, record: RangeRecord, scale: float, offset: float = 0.0):
+        """Rebuild a recorded range factor for another range scale and offset: ``(reading - offset) / scale``."""
         noise = robust(record.sigma_m / scale, self.config)
-        return self.model.range_factor(record.keyframe, record.landmark_key, record.reading_m / scale, noise)
+        return self.model.range_factor(record.keyframe, record.landmark_key, (record.reading_m - offset) / scale, noise)
 
-    def graph(self, scale: float | None = None, extra_turn_density2: float = 0.0) -> gtsam.NonlinearFactorGraph:
-        """Every factor so far (``keep_history``): ranges built with ``scale``, wheel factors with
+    def graph(self, scale: float | None = None, extra_turn_density2: float = 0.0, offset: float | None = None) -> gtsam.NonlinearFactorGraph:
+        """Every factor so far (``keep_history``): ranges built with ``scale`` and ``offset`` (reading units; else
+        :attr:`range_offset_m`), wheel factors with
         :attr:`wheel_scale` (else with the drift term at :attr:`wheel_drift_density`, else as built online),
         their heading loosened by ``extra_turn_density2`` (:meth:`OdometryDelta.with_turn_density`)."""
         scale = self.range_scale if scale is None else scale
+        offset = self.range_offset_m if offset is None else offset
         g = gtsam.NonlinearFactorGraph(self.fixed_factors)
         for r in self.range_records:
-            g.add(self.range_factor(r, scale))
+            g.add(self.range_factor(r, scale, offset))
         for k, delta in self.odometry_records:
             if self.wheel_scale is None and self.wheel_drift_density is not None:
                 delta = delta.with_drift_density(self.wheel_drift_density)

@@ -145,6 +145,12 @@ class GraphConfig:
         radio's scale is unknown until calibrated: Plaza's reads 7 % long).
     range_scale_bounds : tuple of float
         Search interval of the scale.
+    range_offset : {"off", "estimate"}
+        ``graph-batch`` only. ``estimate``: the final solve searches the
+        offset common to every reported range by profile likelihood
+        (:func:`~graphpos.graph.calibration.estimate_range_offset`) and adds
+        the offset's uncertainty to the output covariances. Its
+        self-calibration turns it on for drives that report ranges.
     wheel_scale : {"off", "estimate"}
         ``graph-batch`` only. ``estimate``: self-calibrate the wheel's
         scale error (``reading = scale * speed``) from the drive: fit it to
@@ -202,6 +208,7 @@ class GraphConfig:
     output_covariance: bool = True
     range_scale: str = "auto"
     range_scale_bounds: tuple[float, float] = (0.8, 1.25)
+    range_offset: str = "off"
     wheel_scale: str = "estimate"
     wheel_scale_bounds: tuple[float, float] = (0.8, 1.25)
     batch_max_iterations: int = 100
@@ -219,6 +226,8 @@ class GraphConfig:
             raise ConfigError(f"wheel_scale must be one of {WHEEL_SCALE_MODES}, got {self.wheel_scale!r}")
         if self.range_scale not in RANGE_SCALE_MODES:
             raise ConfigError(f"range_scale must be one of {RANGE_SCALE_MODES}, got {self.range_scale!r}")
+        if self.range_offset not in WHEEL_SCALE_MODES:
+            raise ConfigError(f"range_offset must be one of {WHEEL_SCALE_MODES}, got {self.range_offset!r}")
         require_positive_numbers(self, skip=("max_delay_s",))
         if not (math.isfinite(self.max_delay_s) and self.max_delay_s >= 0):
             raise ConfigError(f"max_delay_s must be >= 0, got {self.max_delay_s}")
