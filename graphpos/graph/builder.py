@@ -125,6 +125,8 @@ class RangeRecord:
     reading_m: float
     sigma_m: float
     field: str | None = None
+    #: The landmark's bearing in a camera's image, rad, where the reading has one (a bearing-dependent range error).
+    bearing_rad: float = math.nan
 
 
 @dataclass
@@ -388,6 +390,8 @@ class GraphBuilder:
         if ch == "rfid":
             if not self.range_models:
                 return None
+            if (self.corrections.range_offset_m or self.corrections.range_bearing2_m_per_rad2) and "range_m" in v:
+                v = self.corrections.corrected_values("rfid", v)  # a camera's bearing term learnt online (graph-isam2)
             distance, sigma, which = ranges_by_field(self.range_models, Channel("rfid", {k: [x] for k, x in v.items()}, validate=False))
             if which[0] < 0:
                 _count(self.diagnostics["non_finite"], "rfid." + "/".join(self.range_models))
@@ -398,14 +402,15 @@ class GraphBuilder:
             # the sigma at the reading's own distance stands in until the
             # keyframe's estimate gives a better one (see _range_sigma_m)
             field_name = list(self.range_models)[which[0]]
-            return ("range", ("tag", int(v["tag_id"])), float(distance[0]), float(sigma[0]) * self.config.range_sigma_scale, field_name)
+            return ("range", ("tag", int(v["tag_id"])), float(distance[0]), float(sigma[0]) * self.config.range_sigma_scale, field_name,
+                    float(v.get("bearing_rad", math.nan)))
         if ch not in ABSOLUTE_FIELDS or not all([self._finite(m, name) for name in ABSOLUTE_FIELDS[ch]]):
             return None
         if ch == "compass":
             return ("compass", float(v["yaw_rad"]))
         if ch == "rsu":
             if math.isfinite(v.get("range_m", math.nan)):
-                return ("range", ("rsu", int(v["rsu_id"])), float(v["range_m"]), float(v["sigma_m"]), None)
+                return ("range", ("rsu", int(v["rsu_id"])), float(v["range_m"]), float(v["sigma_m"]), None, math.nan)
             if not all([self._finite(m, "east_m"), self._finite(m, "north_m")]):
                 return None
         return ("fix", float(v["east_m"]), float(v["north_m"]), float(v["sigma_m"]))
@@ -511,7 +516,7 @@ class GraphBuilder:
         elif kind == "fix":
             state = self.ignition.fix(t_s, entry[1], entry[2], entry[3])
         else:
-            _, which, reading, sigma, _ = entry
+            _, which, reading, sigma, _, _ = entry
             mark = np.array([self._landmark_position(which)])
             state = self.ignition.ranges(t_s, mark, np.array([reading / self.range_scale]), np.array([sigma / self.range_scale]))
         self._ignite(state)
@@ -648,14 +653,14 @@ class GraphBuilder:
                 sig = np.array([s, s, 1e3]) if dim == 3 else s
                 self._add(inc, [self.model.fix_factor(k, e, n, robust(sig, c, dim))])
             else:
-                _, which, reading, sigma, field_name = entry
+                _, which, reading, sigma, field_name, bearing = entry
                 key = self._landmark_key(inc, which, k)
                 if field_name is not None and at_estimate and k in self.states:
                     s, (e, n) = self.states[k], self._landmark_position(which)
                     at = float(self._range_sigma_m(np.array([math.hypot(s.east_m - e, s.north_m - n) * self.range_scale]), field_name)[0])
                     sigma = at if math.isfinite(at) else sigma
                 if self.keep_history:
-                    self.range_records.append(RangeRecord(k, key, reading, sigma, field_name))
+                    self.range_records.append(RangeRecord(k, key, reading, sigma, field_name, bearing))
                 noise = robust(sigma / self.range_scale, c)
                 inc.factors.add(self.model.range_factor(k, key, reading / self.range_scale, noise))
                 self.diagnostics["ranges"] += 1
@@ -691,6 +696,14 @@ class GraphBuilder:
         for r, s in zip(records, sigma):
             if np.isfinite(s):
                 r.sigma_m = float(s)
+
+    def correct_range_records(self, offset: float, bearing2: float) -> None:
+        """Correct the recorded tag readings as a learnt correction corrects those to come:
+        ``reading - bearing2 * bearing^2 - offset`` (the bearing term where a reading has one), at least 0."""
+        for r in self.range_records:
+            if r.field is not None:
+                b = r.bearing_rad if math.isfinite(r.bearing_rad) else 0.0
+                r.reading_m = max(r.reading_m - bearing2 * b * b - offset, 0.0)
 
     def range_factor(self, record: RangeRecord, scale: float, offset: float = 0.0):
         """Rebuild a recorded range factor for another range scale and offset: ``(reading - offset) / scale``."""

@@ -302,10 +302,9 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
       on simulated paper drives (mean RMS over 6 seeds 0.439 m against
       0.355 m with the default density);
     - ranges (reported ranges only): the range scale found by the profile
-      likelihood search (:func:`estimate_range_scale`) or 1, an offset (the
-      median residual), a sigma (1.4826 x MAD) of the readings about the
-      solved distances, and the factor on it for errors that repeat from one
-      reading of a landmark to the next (:func:`_lag1_correlation`).
+      likelihood search (:func:`estimate_range_scale`) or 1, and the offset,
+      camera bearing term, sigma and correlation factor of
+      :func:`fit_range_terms`.
 
     The solved trajectory's own jitter adds to the turn residuals, so the noise
     levels err on the large side (a conservative covariance). The odometry
@@ -339,18 +338,7 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
         heading_noise_radps_per_sqrt_s=max(math.sqrt(heading_var), gyro_density),
         turn_scale_density_per_sqrt_s=math.sqrt(turn_var),
     )
-    if builder.range_records and getattr(builder.range_model, "input_column", None) == "range_m":
-        reading = np.array([r.reading_m for r in builder.range_records])
-        pos = np.array([builder.model.position(values, r.keyframe) for r in builder.range_records])
-        marks = np.array([builder.landmark_positions[r.landmark_key] for r in builder.range_records])
-        dist = np.hypot(*(pos - marks).T)
-        res = reading - builder.range_scale * dist
-        offset = float(np.median(res))
-        sigma = 1.4826 * float(np.median(np.abs(res - offset))) / builder.range_scale
-        keys = np.array([r.landmark_key for r in builder.range_records])
-        rho = _lag1_correlation(res - offset, keys)
-        fields.update(range_scale=float(builder.range_scale), range_offset_m=offset, range_sigma0_m=max(sigma, 0.02), range_sigma_slope=0.0,
-                      range_sigma_scale=float(math.sqrt((1 + rho) / (1 - rho))))
+    fields.update(fit_range_terms(builder, values) or {})
     return SensorProfile(**fields, source={"drive": drive_name, "estimator": "graph-batch", "windows": int(T.size),
                                            "turned_rad": turned})
 
@@ -362,32 +350,55 @@ MIN_BEARING2_SPREAD_RAD2 = 0.01
 BEARING_FIT_MAX_RESIDUAL_M = 1.0
 
 
-def fit_bearing_range_term(drive, estimate, range_scale: float) -> tuple[float, float, float] | None:
-    """Offset, bearing^2 coefficient and sigma of a camera's ranges about a solved track (no truth).
+def fit_bearing_term(residual: np.ndarray, bearing: np.ndarray) -> tuple[float, float, float] | None:
+    """Offset, bearing^2 coefficient and sigma of a camera's range residuals (no truth).
 
     A range measured from a landmark's image reads off by an amount that
     grows with the landmark's bearing in the image (MRCLAM's camera:
     ``reading = range_scale * d + c0 + c2 * bearing^2``, c2 -1.0 to -1.7
-    m/rad^2 on Dataset 6's robots, :mod:`graphpos.io.mrclam`). The raw
-    readings that carry a ``bearing_rad`` are compared with the distances
-    from the track ``estimate`` (interpolated to each reading's time) and
-    ``[c0, c2]`` is fitted by Huber regression. Returns ``(c0, c2, sigma)``
-    in reading units, or None when the drive has too few such readings, or
-    bearings too alike to tell the term from the offset.
+    m/rad^2 on Dataset 6's robots, :mod:`graphpos.io.mrclam`). The
+    residuals ``reading - range_scale * d`` of the readings that carry a
+    bearing (NaN: none) are fitted by ``[c0, c2]`` Huber regression, those
+    beyond :data:`BEARING_FIT_MAX_RESIDUAL_M` of the median left out.
+    Returns ``(c0, c2, sigma)`` in reading units, or None with too few such
+    readings, or bearings too alike to tell the term from the offset.
     """
-    if not drive.reports_ranges or estimate.t_s.size < 2:
+    has = np.isfinite(bearing) & np.isfinite(residual)
+    if has.sum() < MIN_BEARING_READINGS:
         return None
-    rfid = drive.channels["rfid"]
-    bearing = rfid.bearing_rad
-    inside = np.isfinite(bearing) & np.isfinite(rfid.range_m) & (rfid.t_s >= estimate.t_s[0]) & (rfid.t_s <= estimate.t_s[-1])
-    if inside.sum() < MIN_BEARING_READINGS:
-        return None
-    t, b, reading = rfid.t_s[inside], bearing[inside], rfid.range_m[inside]
-    marks = drive.tags.positions(rfid.tag_id[inside])
-    dist = np.hypot(np.interp(t, estimate.t_s, estimate.east_m) - marks[:, 0], np.interp(t, estimate.t_s, estimate.north_m) - marks[:, 1])
-    residual = reading - range_scale * dist
-    ok = np.abs(residual - np.median(residual)) < BEARING_FIT_MAX_RESIDUAL_M
+    r, b = residual[has], bearing[has]
+    ok = np.abs(r - np.median(r)) < BEARING_FIT_MAX_RESIDUAL_M
     if ok.sum() < MIN_BEARING_READINGS or float(np.std(b[ok] ** 2)) < MIN_BEARING2_SPREAD_RAD2:
         return None
-    (c0, c2), left = _huber_lstsq(np.column_stack([np.ones(ok.sum()), b[ok] ** 2]), residual[ok])
+    (c0, c2), left = _huber_lstsq(np.column_stack([np.ones(ok.sum()), b[ok] ** 2]), r[ok])
     return float(c0), float(c2), 1.4826 * float(np.median(np.abs(left - np.median(left))))
+
+
+def fit_range_terms(builder, values: gtsam.Values) -> dict[str, float] | None:
+    """The range fields of a sensor profile, from the reported ranges about a solved graph (no truth); None without them.
+
+    Each recorded reading (less the builder's :attr:`~GraphBuilder.range_offset_m`)
+    is compared with ``range_scale`` times the distance from its keyframe's
+    solved position: the camera's bearing term where the readings carry
+    bearings (:func:`fit_bearing_term`), else an offset (the median
+    residual); a sigma (1.4826 x MAD of what is left, in metres); and the
+    factor on it for errors that repeat from one reading of a landmark to
+    the next (:func:`_lag1_correlation`). Offset and bearing coefficient are
+    in the recorded readings' units: on readings already corrected, they
+    correct them further.
+    """
+    records = builder.range_records
+    if not records or getattr(builder.range_model, "input_column", None) != "range_m":
+        return None
+    reading = np.array([r.reading_m for r in records])
+    pos = np.array([builder.model.position(values, r.keyframe) for r in records])
+    marks = np.array([builder.landmark_positions[r.landmark_key] for r in records])
+    bearing = np.array([r.bearing_rad for r in records])
+    res = reading - builder.range_offset_m - builder.range_scale * np.hypot(*(pos - marks).T)
+    term = fit_bearing_term(res, bearing)
+    c0, c2 = (term[0], term[1]) if term is not None else (float(np.median(res)), 0.0)
+    left = res - c0 - c2 * np.where(np.isfinite(bearing), bearing, 0.0) ** 2
+    sigma = 1.4826 * float(np.median(np.abs(left - np.median(left)))) / builder.range_scale
+    rho = _lag1_correlation(left, np.array([r.landmark_key for r in records]))
+    return dict(range_scale=float(builder.range_scale), range_offset_m=c0, range_bearing2_m_per_rad2=c2, range_sigma0_m=max(sigma, 0.02),
+                range_sigma_slope=0.0, range_sigma_scale=float(math.sqrt((1 + rho) / (1 - rho))))

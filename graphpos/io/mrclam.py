@@ -41,7 +41,7 @@ against Dataset 6 (see ``tests/io/test_mrclam.py``):
     range-only estimator sees it as errors correlated over seconds (lag-1
     correlation of a landmark's errors 0.5-0.7 at 1 s). graph-batch's
     self-calibration fits ``c2`` from the drive itself
-    (:func:`graphpos.graph.calibration.fit_bearing_range_term`).
+    (:func:`graphpos.graph.calibration.fit_bearing_term`).
 ``RobotN_Groundtruth.dat`` ``t_s x_m y_m theta_rad``
     Vicon poses at about 60 Hz; theta is counter-clockwise from x and agrees
     with the direction of motion. Taking x as east and y as north, it is the
