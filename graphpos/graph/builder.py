@@ -272,6 +272,11 @@ class GraphBuilder:
         """The estimator's range model (the first of :attr:`range_models`); None without RFID readings."""
         return next(iter(self.range_models.values()), None)
 
+    @property
+    def reports_ranges(self) -> bool:
+        """Whether the tag readings are ranges (``range_m``), not signal strengths."""
+        return getattr(self.range_model, "input_column", None) == "range_m"
+
     # -- time grid ----------------------------------------------------------
     def keyframe_time(self, k: int) -> float:
         seg = self.segments[-1]  # nearly always: the current track's keyframes are asked for

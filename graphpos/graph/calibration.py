@@ -388,7 +388,7 @@ def fit_range_terms(builder, values: gtsam.Values) -> dict[str, float] | None:
     correct them further.
     """
     records = builder.range_records
-    if not records or getattr(builder.range_model, "input_column", None) != "range_m":
+    if not records or not builder.reports_ranges:
         return None
     reading = np.array([r.reading_m for r in records])
     pos = np.array([builder.model.position(values, r.keyframe) for r in records])

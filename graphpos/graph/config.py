@@ -19,6 +19,7 @@ PARAMETERISATIONS = ("auto", "planar", "inertial")
 ROBUST_LOSSES = ("huber", "cauchy", "none")
 RANGE_SCALE_MODES = ("auto", "off", "estimate")
 WHEEL_SCALE_MODES = ("off", "estimate")
+RANGE_OFFSET_MODES = ("off", "estimate")
 
 
 @dataclass
@@ -226,8 +227,8 @@ class GraphConfig:
             raise ConfigError(f"wheel_scale must be one of {WHEEL_SCALE_MODES}, got {self.wheel_scale!r}")
         if self.range_scale not in RANGE_SCALE_MODES:
             raise ConfigError(f"range_scale must be one of {RANGE_SCALE_MODES}, got {self.range_scale!r}")
-        if self.range_offset not in WHEEL_SCALE_MODES:
-            raise ConfigError(f"range_offset must be one of {WHEEL_SCALE_MODES}, got {self.range_offset!r}")
+        if self.range_offset not in RANGE_OFFSET_MODES:
+            raise ConfigError(f"range_offset must be one of {RANGE_OFFSET_MODES}, got {self.range_offset!r}")
         require_positive_numbers(self, skip=("max_delay_s",))
         if not (math.isfinite(self.max_delay_s) and self.max_delay_s >= 0):
             raise ConfigError(f"max_delay_s must be >= 0, got {self.max_delay_s}")

@@ -108,7 +108,7 @@ class _GraphEstimator(Estimator):
         """Whether to self-calibrate the range scale: ``range_scale`` "estimate", or "auto" with
         reported ranges and no range model given (graph-batch offline, graph-isam2 online)."""
         mode = self.config.range_scale
-        return mode == "estimate" or (mode == "auto" and self.range_model is None and _reports_ranges(self.builder))
+        return mode == "estimate" or (mode == "auto" and self.range_model is None and self.builder.reports_ranges)
 
     def _update(self, inc: Increment) -> None:
         import time
@@ -154,11 +154,6 @@ class _GraphEstimator(Estimator):
             "range_scale": self.builder.range_scale,
         }
         return Estimate.from_rows(self.name, rows, rate_hz=self.config.keyframe_rate_hz, diagnostics=diagnostics)
-
-
-def _reports_ranges(builder: GraphBuilder) -> bool:
-    """Whether the drive's tag readings are ranges (``range_m``), not signal strengths."""
-    return getattr(builder.range_model, "input_column", None) == "range_m"
 
 
 def _with_drive_rates(config: GraphConfig, drive: Drive) -> GraphConfig:
@@ -237,7 +232,7 @@ class GraphIsam2(_GraphEstimator):
         what = f"{self.name} on '{self._drive_name}' (learning at keyframe {k})"
         values = b.history_values(self.smoother.estimate())
         scale = b.range_scale
-        reported = getattr(b.range_model, "input_column", None) == "range_m"
+        reported = b.reports_ranges
         if self._estimates_range_scale() and b.range_records:
             scale, _ = estimate_range_scale(b, values, self.config, what)
         # fitted to a solve whose heading may depart from the turn rate (graph-batch's first solve loosens it the same way)
@@ -564,7 +559,7 @@ class GraphBatch(_GraphEstimator):
             self.builder.reweight_ranges(initial)
             self._fit_wheel_scale(initial)
         offset = None
-        if self.config.range_offset == "estimate" and self.builder.range_records and _reports_ranges(self.builder):
+        if self.config.range_offset == "estimate" and self.builder.range_records and self.builder.reports_ranges:
             offset = estimate_range_offset(self.builder, initial, self.config, what)
             self.builder.range_offset_m = offset.offset_m
             self.builder.diagnostics.update(range_offset_m=offset.offset_m, range_offset_sigma_m=offset.sigma_m)
