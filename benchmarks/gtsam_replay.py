@@ -202,8 +202,8 @@ class Recorder:
         rec = self
         lag_init = smoothers.FixedLagSmoother.__init__
 
-        def fixed_lag_init(obj, model_name: str, lag_s: float):
-            lag_init(obj, model_name, lag_s)
+        def fixed_lag_init(obj, model_name: str, lag_s: float, **kwargs):
+            lag_init(obj, model_name, lag_s, **kwargs)  # the timestamps it floors reach the recorded updates as floored
             sid = len(rec.smoothers)
             rec.smoothers.append(("fixed-lag", model_name, lag_s))
             rec.calls.append(("new", sid, None, None, None))

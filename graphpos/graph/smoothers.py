@@ -164,11 +164,16 @@ class WindowedIsam2Smoother(FixedLagSmoother):
     def __init__(self, model_name: str, window_s: float):
         super().__init__(model_name, window_s, marginalise_every_s=WINDOW_MARGINALISE_SHARE * window_s)
         self._stamps: dict[int, float] = {}  # every key in the window, and the stamp GTSAM has for it
+        # the same keys grouped by stamp: stamps are floored to the marginalisation period, so the keys that leave
+        # are a few whole groups, found without scanning the window's thousands of keys at every update
+        self._by_stamp: dict[float, set[int]] = {}
         self._left = gtsam.Values()  # every key marginalised, as estimated just before it left
 
     def update(self, factors: gtsam.NonlinearFactorGraph, values: gtsam.Values, timestamps: dict[int, float], extra_iterations: int = 0) -> None:
         cutoff_s = self.cutoff_s(timestamps)
-        leaving = {key for key, stamp in self._stamps.items() if stamp < cutoff_s}
+        leaving: set[int] = set()
+        for stamp in [stamp for stamp in self._by_stamp if stamp < cutoff_s]:
+            leaving |= self._by_stamp.pop(stamp)
         if leaving:
             kept = self.isam.calculateBestEstimate()
             for key in [key for key in kept.keys() if key not in leaving]:
@@ -176,7 +181,14 @@ class WindowedIsam2Smoother(FixedLagSmoother):
             self._left.insert(kept)
             for key in leaving:
                 del self._stamps[key]
-        self._stamps.update({key: self.stamp(t_s) for key, t_s in timestamps.items()})
+        for key, t_s in timestamps.items():
+            stamp = self.stamp(t_s)
+            old = self._stamps.get(key)
+            if old != stamp:
+                if old is not None:
+                    self._by_stamp[old].discard(key)
+                self._stamps[key] = stamp
+                self._by_stamp.setdefault(stamp, set()).add(key)
         super().update(factors, values, timestamps, extra_iterations)
 
     @property

@@ -75,3 +75,32 @@ def test_learning_rebuilds_the_ranges_left_in_the_window():
     assert learnt[-1]["keyframe"] * est.builder.period_s > 2 * WINDOW_S
     assert learnt[-1]["ranges_rebuilt"] < 0.6 * len(est.builder.range_records)
     assert _gap_m(windowed, whole) < 0.3
+
+
+def test_the_window_bookkeeping_matches_the_isam2_when_keys_are_stamped_again():
+    """The keys the window expects to hold are exactly those in its iSAM2, update after update, when a
+    landmark is stamped again at every update (it must stay) and keyframes leave in batches."""
+    from gtsam.symbol_shorthand import L, X
+
+    from graphpos.graph.smoothers import WindowedIsam2Smoother
+
+    window = WindowedIsam2Smoother("planar", window_s=2.0)
+    odometry = gtsam.noiseModel.Diagonal.Sigmas(np.array([0.05, 0.05, 0.01]))
+    rng = np.random.default_rng(5)
+    for k in range(80):
+        t_s = 0.1 * k
+        factors, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+        values.insert(X(k), gtsam.Pose2(0.5 * t_s, 0.0, 0.0))
+        if k == 0:
+            factors.add(gtsam.PriorFactorPose2(X(0), gtsam.Pose2(), odometry))
+            factors.add(gtsam.PriorFactorPoint2(L(1), np.array([2.0, 3.0]), gtsam.noiseModel.Isotropic.Sigma(2, 0.01)))
+            values.insert(L(1), np.array([2.0, 3.0]))
+        else:
+            factors.add(gtsam.BetweenFactorPose2(X(k - 1), X(k), gtsam.Pose2(0.05, 0.0, 0.0), odometry))
+        distance = float(np.hypot(0.5 * t_s - 2.0, 3.0))
+        factors.add(gtsam.RangeFactor2D(X(k), L(1), distance + 0.01 * rng.standard_normal(), gtsam.noiseModel.Isotropic.Sigma(1, 0.1)))
+        window.update(factors, values, {X(k): t_s, L(1): t_s})
+        held = set(window.isam.getLinearizationPoint().keys())
+        assert set(window._stamps) == held, k
+        assert set().union(*window._by_stamp.values()) == held, k
+    assert L(1) in held and X(0) not in held and window.estimate().exists(X(0))
