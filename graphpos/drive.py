@@ -656,8 +656,8 @@ class Drive:
             (name, list(self.channels[name].columns.keys()), np.column_stack(list(self.channels[name].columns.values())).tolist())
             for name in names
         ]
-        for i in order.tolist():
-            name, col_names, table = cols[code[i]]
-            values = dict(zip(col_names, table[row[i]]))
+        for c, r in zip(code[order].tolist(), row[order].tolist()):  # Python ints: no numpy scalar per row
+            name, col_names, table = cols[c]
+            values = dict(zip(col_names, table[r]))
             t = values["t_s"]
             yield Measurement(name, t, values.get("arrival_s", t), values)

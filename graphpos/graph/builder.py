@@ -83,6 +83,7 @@ START_PRIOR_INFLATION = 3.0
 START_MAX_YAW_SIGMA_RAD = math.radians(15.0)
 #: The odometry sensors: (channel, field) pairs whose silence ends the track.
 ODOMETRY_SENSORS = (("imu", "yaw_rate_radps"), ("wheel", "speed_mps"))
+_ODOMETRY_FIELD = dict(ODOMETRY_SENSORS)  # one odometry field per channel
 #: The fields each absolute channel's factors read (checked for finite values).
 ABSOLUTE_FIELDS = {"compass": ("yaw_rad",), "gnss": ("east_m", "north_m", "sigma_m"), "rsu": ("sigma_m",)}
 
@@ -303,7 +304,7 @@ class GraphBuilder:
         to the motion (counted per channel in ``without_odometry``, dropped).
         """
         out = []
-        if self.tracking:
+        if self.tracking and self.keyframe_time(self.last_keyframe + 1) < m.arrival_s - 1e-9:  # most measurements: the next keyframe is ahead
             out = self._close_covered(m.arrival_s)
             if self.keyframe_time(self.last_keyframe + 1) < m.arrival_s - 1e-9:
                 self._lost_s = min(self._last_sample_s.values())
@@ -328,7 +329,7 @@ class GraphBuilder:
         sample are closed: none is extrapolated past the odometry.
         """
         if self.keyframe_time(self.last_keyframe + 1) >= until_s - 1e-9:
-            return []  # most measurements: the next keyframe is still ahead
+            return []  # the next keyframe is still ahead
         last_s = min(self._last_sample_s.values())
         hold_s = self.max_gap_s if not ended and until_s - last_s <= self.max_gap_s else 0.5 * self.period_s
         covered_s = last_s + hold_s + 1e-9
@@ -339,13 +340,11 @@ class GraphBuilder:
 
     def _note_odometry(self, m: Measurement) -> bool:
         """Record the time of an odometry sample's finite fields (counting non-finite ones); whether it had any."""
-        fresh = False
-        for sensor in self._last_sample_s:
-            if sensor[0] == m.channel:
-                if self._finite(m, sensor[1]):
-                    self._last_sample_s[sensor] = m.t_s
-                    fresh = True
-        return fresh
+        sensor = (m.channel, _ODOMETRY_FIELD.get(m.channel))
+        if sensor not in self._last_sample_s or not self._finite(m, sensor[1]):
+            return False
+        self._last_sample_s[sensor] = m.t_s
+        return True
 
     def _finite(self, m: Measurement, name: str) -> bool:
         """Whether a field of a measurement is finite; a non-finite one is counted in ``non_finite``."""
