@@ -66,7 +66,10 @@ The inputs of each channel (:data:`INPUTS`; [optional]):
 imu      yaw_rate (rad/s); [accel_x and accel_y (m/s^2), forward and left]
 wheel    speed (m/s), forward
 compass  yaw (rad) or orientation (a quaternion)
-rfid     tag_id; range (m) and/or rss
+rfid     tag_id; range (m) and/or rss; [bearing (rad): the tag's bearing
+         from the body x axis, counter-clockwise, where the sensor gives one,
+         as a camera does: its range error may depend on it, which
+         graph-batch's self-calibration fits, :mod:`graphpos.profile`]
 rsu      rsu_id; sigma (m); east and north (m) and/or range (m)
 gnss     lat and lon (deg) [and alt (m), above the ellipsoid] or east and
          north (m); sigma (m, 1-sigma per axis) or covariance (NavSatFix's
@@ -79,8 +82,8 @@ truth    east and north (m); yaw (rad) or orientation; [v_east and v_north,
 
 Every value read is checked (a number, finite unless its drive column is
 optional, ids whole); an error names the file or topic, the row or message
-and the field. Rows are sorted by time (stably). Compass yaw is wrapped
-into (-pi, pi], truth yaw unwrapped.
+and the field. Rows are sorted by time (stably). Compass yaw and tag
+bearings are wrapped into (-pi, pi], truth yaw unwrapped.
 """
 
 from __future__ import annotations
@@ -159,7 +162,8 @@ INPUTS: dict[str, dict[str, Input]] = {
             "accel_y": Input("number", "acceleration", "m/s^2", optional=True)},
     "wheel": {"speed": _SPEED},
     "compass": {"yaw": _ANGLE, "orientation": _QUATERNION},
-    "rfid": {"tag_id": _ID, "range": _SOME_LENGTH, "rss": Input(optional=True)},
+    "rfid": {"tag_id": _ID, "range": _SOME_LENGTH, "rss": Input(optional=True),
+             "bearing": Input("number", "angle", "rad", optional=True)},
     "rsu": {"rsu_id": _ID, "east": _SOME_LENGTH, "north": _SOME_LENGTH, "range": _SOME_LENGTH, "sigma": _LENGTH},
     "gnss": {"lat": _GEODETIC, "lon": _GEODETIC, "alt": _LENGTH, "east": _LENGTH, "north": _LENGTH, "sigma": _LENGTH,
              "covariance": Input("covariance"), "status": Input()},
@@ -200,7 +204,7 @@ _NEEDS: dict[str, tuple[_Need, ...]] = {
 _DIRECT = {"yaw_rate": "yaw_rate_radps", "accel_x": "accel_x_mps2", "accel_y": "accel_y_mps2", "speed": "speed_mps",
            "tag_id": "tag_id", "rsu_id": "rsu_id", "range": "range_m", "rss": "rss", "east": "east_m",
            "north": "north_m", "sigma": "sigma_m", "v_east": "v_east_mps", "v_north": "v_north_mps",
-           "arrival": "arrival_s"}
+           "arrival": "arrival_s", "bearing": "bearing_rad"}
 
 #: Section keys: common ones by source, and the channels a channel-specific key belongs to.
 _SOURCE_KEYS = {"rosbag": ("topic", "type", "fields", "units", "time"),
@@ -759,6 +763,8 @@ def _columns(raw: RawChannel, get: Callable[[str], np.ndarray | None], origin: G
                                    if column in names and name in raw.fields}}
     if cm.channel == "compass":
         cols["yaw_rad"] = np.angle(np.exp(1j * _yaw_rad(cm, get)))  # wrapped into (-pi, pi]
+    if cols.get("bearing_rad") is not None:
+        cols["bearing_rad"] = np.angle(np.exp(1j * cols["bearing_rad"]))  # a 0-360 degree log too; NaN stays NaN
     if cm.channel == "gnss":
         if "lat" in raw.fields:
             cols["east_m"], cols["north_m"], _ = geodetic_to_enu(get("lat"), get("lon"), origin, get("alt"))

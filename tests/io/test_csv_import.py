@@ -73,6 +73,19 @@ def test_rsu_ranges_with_a_constant_sigma_and_a_yaml_map(tmp_path):
     assert drive.params["import_notes"] == [f"{tmp_path / 'rsu.csv'}: 2 rows were out of time order; sorted"]
 
 
+def test_camera_ranges_keep_their_bearing_for_the_range_calibration(tmp_path):
+    """A camera's ranges with the landmark's bearing (degrees in the log): the drive keeps it as ``bearing_rad``,
+    which the sensor profile's bearing term reads, wrapped into (-180, 180] degrees (340 is -20); a reading without one
+    (an empty cell) is NaN, not refused."""
+    (tmp_path / "tags.csv").write_text("tag_id,east_m,north_m\n6,1.0,2.0\n7,3.0,-1.0\n")
+    (tmp_path / "cam.csv").write_text("t,id,r,b\n0.0,6,2.5,340.0\n0.2,7,3.1,\n0.4,6,2.4,12.5\n")
+    (tmp_path / "m.toml").write_text('[drive]\ntags = "tags.csv"\n[rfid]\nfile = "cam.csv"\ntime = "t"\n'
+                                     'fields = { tag_id = "id", range = "r", bearing = "b" }\nunits = { bearing = "deg" }\n')
+    rfid = import_csv(tmp_path, tmp_path / "m.toml").rfid
+    assert rfid.range_m.tolist() == [2.5, 3.1, 2.4]
+    np.testing.assert_allclose(rfid.bearing_rad, np.radians([-20.0, np.nan, 12.5]))
+
+
 def _edit(path, line, column, value):
     """Set one cell of a CSV file (``line``: 1-based, the header is line 1)."""
     with path.open(newline="") as stream:
