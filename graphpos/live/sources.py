@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import socket
 import struct
+import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -24,6 +25,10 @@ Sink = Callable[[bytes, int, str], None]
 
 #: Receive buffer asked for on UDP sockets: about 20 s of a 100 Hz IMU with every other sensor.
 UDP_BUFFER_BYTES = 32 * 1024 * 1024
+#: Linux's SO_RCVBUFFORCE (beyond net.core.rmem_max, for a privileged process): Python's socket module names it
+#: only from 3.12 on, and without it a 3.11 receiver got the kernel's cap (8 MB here, under 2 s of a 20-times-fast
+#: replay) and lost readings, the end of the drive among them, while its estimators caught up.
+_SO_RCVBUFFORCE = getattr(socket, "SO_RCVBUFFORCE", 33 if sys.platform.startswith("linux") else None)
 #: Longest TCP line accepted; a longer one is cut off and handed on (it is then malformed).
 MAX_LINE_BYTES = 65536
 _POLL_S = 0.2
@@ -92,7 +97,7 @@ class Listener:
         self._spawn(target)
 
     def _big_buffer(self) -> None:
-        for option in (getattr(socket, "SO_RCVBUFFORCE", None), socket.SO_RCVBUF):
+        for option in (_SO_RCVBUFFORCE, socket.SO_RCVBUF):
             if option is None:
                 continue
             try:

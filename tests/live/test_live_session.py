@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 import threading
@@ -157,3 +158,18 @@ def test_replay_to_nothing_says_so(tmp_path, drive):
                           timeout=120)
     err = done.stderr.decode().strip()
     assert done.returncode == 2 and len(err.splitlines()) == 1 and "cannot send to tcp://127.0.0.1:1" in err, err
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux") or os.geteuid() != 0, reason="SO_RCVBUFFORCE: Linux, as root")
+def test_a_udp_listener_gets_its_whole_receive_buffer_beyond_the_kernel_cap():
+    """The receive buffer holds about 20 s of readings while the estimators catch up: a privileged listener
+    asks past net.core.rmem_max (the kernel reports twice what it allows, its bookkeeping included)."""
+    import socket
+
+    from graphpos.live.sources import UDP_BUFFER_BYTES, Address, Listener
+
+    listener = Listener(Address("udp", "127.0.0.1", 0), lambda payload, receipt_ns, where: None)
+    try:
+        assert listener._sock.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF) >= UDP_BUFFER_BYTES
+    finally:
+        listener.close()
