@@ -1,6 +1,7 @@
 """The song2016 / song2016b estimators on hand-built drives: contract, timing, gating, fallbacks."""
 
 import dataclasses
+import functools
 
 import numpy as np
 import pytest
@@ -170,14 +171,20 @@ def test_estimators_registered():
         assert ESTIMATORS[name].summary
 
 
+@functools.lru_cache(maxsize=1)
+def _plaza1():
+    """Plaza1 imported once per worker (the estimators only read it: ``without_truth`` gives them a new drive)."""
+    from graphpos.io.plaza import import_plaza
+
+    return import_plaza(PLAZA1)
+
+
 @pytest.mark.skipif(not PLAZA1.exists(), reason="Plaza1.mat not available")
 @pytest.mark.parametrize("name", ["dr", "fusion-ekf", "two-level-ekf", pytest.param("fukf", marks=pytest.mark.slow)])
 def test_plaza_fallbacks(name):
     """Real data without accelerometers or compass: the fallbacks track the truth
     (bounds about 1.5x what they achieve with the identity range model)."""
-    from graphpos.io.plaza import import_plaza
-
-    drive = import_plaza(PLAZA1)
+    drive = _plaza1()
     if name == "dr":
         # dead reckoning never corrects its start heading: a user gives the
         # start pose (where the robot was parked, and its heading)
