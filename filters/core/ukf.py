@@ -53,13 +53,38 @@ class MerweScaledSigmaPoints:
         self.Wc[0] = lam / self.scale + 1.0 - alpha * alpha + beta
 
     def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """(2n+1, n) sigma points of ``N(x, P)``."""
-        L = np.linalg.cholesky(self.scale * P)
+        """(2n+1, n) sigma points of ``N(x, P)``.
+
+        A ``P`` that has lost positive definiteness is first projected onto
+        the nearest positive-definite matrix (:func:`nearest_positive_definite`).
+        Deviation from the textbook filter, which assumes it never happens:
+        the scaled transform's negative centre weight (``Wc_0 < 0`` with
+        alpha 0.3) can make an updated covariance indefinite when the
+        heading is uncertain by tens of degrees, and the FUKF then stopped
+        with a traceback (MRCLAM6 robot 3 from a start pose with a 30 deg
+        yaw sigma).
+        """
+        try:
+            L = np.linalg.cholesky(self.scale * P)
+        except np.linalg.LinAlgError:
+            L = np.linalg.cholesky(self.scale * nearest_positive_definite(P))
         out = np.empty((2 * self.n + 1, self.n))
         out[0] = x
         out[1 : self.n + 1] = x + L.T
         out[self.n + 1 :] = x - L.T
         return out
+
+
+def nearest_positive_definite(P: np.ndarray, floor: float = 1e-12) -> np.ndarray:
+    """The symmetric part of ``P`` with its eigenvalues raised to at least ``floor`` times the largest (and > 0).
+
+    The nearest positive-definite matrix in the Frobenius norm (Higham 1988)
+    up to the floor, which keeps a Cholesky factor computable.
+    """
+    S = 0.5 * (P + P.T)
+    w, V = np.linalg.eigh(S)
+    w = np.maximum(w, floor * max(float(w.max()), 1.0))
+    return (V * w).dot(V.T)
 
 
 def _mean(points: np.ndarray, Wm: np.ndarray, angles: Sequence[int]) -> np.ndarray:

@@ -7,7 +7,7 @@ from filterpy.kalman import UnscentedKalmanFilter as FpUkf
 
 from filters.core import ekf
 from filters.core.federated import fuse, share_information
-from filters.core.ukf import MerweScaledSigmaPoints, UnscentedKalmanFilter
+from filters.core.ukf import MerweScaledSigmaPoints, UnscentedKalmanFilter, nearest_positive_definite
 from filters.models import measurements as meas
 from filters.models import vehicle
 from filters.models.angles import angle_residual, circular_mean, wrap_angle
@@ -169,3 +169,26 @@ def test_stacked_interval_update_equals_sequential_updates_when_linear():
     batch.update_points(zs.ravel(), Z, dx, np.tile(R, len(zs)))
     np.testing.assert_allclose(batch.x, seq.x, atol=1e-10)
     np.testing.assert_allclose(batch.P, seq.P, atol=1e-10)
+
+
+def test_sigma_points_of_a_covariance_that_lost_positive_definiteness():
+    """A positive-definite P gives the Cholesky sigma points unchanged; an indefinite one (a tiny negative
+    eigenvalue, as a scaled-transform update can leave) gives those of its nearest positive-definite matrix,
+    whose weighted spread reproduces P where P is positive and nothing where it is not."""
+    pts = MerweScaledSigmaPoints(3, alpha=0.3)
+    rng = np.random.default_rng(1)
+    A = rng.normal(size=(3, 3))
+    P = A @ A.T + 0.1 * np.eye(3)
+    L = np.linalg.cholesky(pts.scale * P)
+    assert np.array_equal(pts.sigma_points(np.zeros(3), P)[1:4], L.T)
+    V = np.linalg.qr(rng.normal(size=(3, 3)))[0]
+    bad = (V * np.array([4.0, 1e-3, -1e-9])) @ V.T
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(pts.scale * bad)
+    chi = pts.sigma_points(np.ones(3), bad)
+    d = chi - np.ones(3)
+    spread = (d[1:] * pts.Wc[1:, None]).T @ d[1:]
+    fixed = nearest_positive_definite(bad)
+    assert np.allclose(spread, fixed, atol=1e-12)
+    assert np.allclose(fixed, (V * np.array([4.0, 1e-3, 0.0])) @ V.T, atol=1e-10)
+    assert np.linalg.eigvalsh(fixed).min() > 0
