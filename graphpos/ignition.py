@@ -39,6 +39,7 @@ the approach, which is source (b).
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
@@ -199,6 +200,77 @@ NO_DR_WINDOW_S = 1.0
 #: Number of trial headings and trial positions per heading of the multi-start solve.
 _HEADING_STARTS = 8
 _POSITION_STARTS = 6
+#: Residual (in sigmas) where ignition's soft-L1 loss turns from quadratic to linear.
+_ROBUST_SCALE = 2.0
+#: Two local minima of the multi-start closer than these are one (m, rad).
+_SAME_MINIMUM_M, _SAME_MINIMUM_RAD = 1e-3, 1e-4
+
+
+def _soft_l1(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """scipy's soft-L1 loss at residuals F: the cost per candidate, and F and the scale of its Jacobian rows for Gauss-Newton.
+
+    The same loss, cost and scaling as ``least_squares(loss="soft_l1",
+    f_scale=_ROBUST_SCALE)`` (scipy's ``scale_for_robust_loss_function``).
+    """
+    z = (F / _ROBUST_SCALE) ** 2
+    cost = _ROBUST_SCALE**2 * np.sum(np.sqrt(1.0 + z) - 1.0, axis=-1)
+    rho1 = (1.0 + z) ** -0.5
+    J_scale = np.sqrt(np.maximum(rho1 - (1.0 + z) ** -1.5 * z, np.finfo(float).eps))
+    return cost, F * rho1 / J_scale, J_scale
+
+
+def _distinct_minima(residuals, starts: np.ndarray, iterations: int = 60) -> list[tuple[np.ndarray, float]]:
+    """The distinct local minima of ignition's robust cost reached from ``starts`` and their costs, best first.
+
+    A Levenberg-Marquardt descent of every start at once (numpy-batched:
+    one least-squares call per start spent most of a real drive's CPU in
+    scipy's per-call overhead while ignition waited: 48 starts, once a
+    second, for minutes on MRCLAM), to a loose tolerance. Starts that reach
+    the same minimum are merged; the caller refines each distinct one with
+    ``least_squares``, whose result it uses.
+
+    Parameters
+    ----------
+    residuals : callable
+        ``X (S, p) -> (F (S, N), J (S, N, p))``, whitened.
+    starts : ndarray, shape (S, p)
+    """
+    X = np.array(starts, dtype=float)
+    F, J = residuals(X)
+    cost, Fs, scale = _soft_l1(F)
+    damping = np.full(len(X), 1e-3)
+    moving = np.ones(len(X), dtype=bool)
+    for _ in range(iterations):
+        if not moving.any():
+            break
+        Js = J[moving] * scale[moving][..., None]
+        H = np.einsum("snp,snq->spq", Js, Js)
+        g = np.einsum("snp,sn->sp", Js, Fs[moving])
+        diag = np.einsum("spp->sp", H)
+        A = H + (damping[moving][:, None] * (diag + 1e-9))[..., None] * np.eye(X.shape[1])
+        try:
+            step = -np.linalg.solve(A, g[..., None])[..., 0]
+        except np.linalg.LinAlgError:
+            break
+        idx = np.flatnonzero(moving)
+        X_new = X[idx] + step
+        F_new, J_new = residuals(X_new)
+        cost_new, Fs_new, scale_new = _soft_l1(F_new)
+        better = np.isfinite(cost_new) & (cost_new < cost[idx])
+        take = idx[better]
+        X[take], F[take], J[take], cost[take], Fs[take], scale[take] = X_new[better], F_new[better], J_new[better], cost_new[better], Fs_new[better], scale_new[better]
+        damping[take] = np.maximum(damping[take] / 10.0, 1e-9)
+        damping[idx[~better]] *= 10.0
+        small = np.max(np.abs(step), axis=1) < 1e-6 * (1.0 + np.max(np.abs(X[idx]), axis=1))
+        moving[idx[(better & small) | (damping[idx] > 1e8)]] = False
+    minima: list[tuple[np.ndarray, float]] = []
+    for i in np.argsort(cost):
+        if not np.all(np.isfinite(X[i])):
+            continue
+        if not any(np.hypot(*(X[i, :2] - m[:2])) < _SAME_MINIMUM_M and (X.shape[1] == 2 or abs(math.remainder(X[i, 2] - m[2], 2 * math.pi)) < _SAME_MINIMUM_RAD)
+                   for m, _ in minima):
+            minima.append((X[i], float(cost[i])))
+    return minima
 
 
 def between_walls(position_en_m: np.ndarray, tags_en_m: np.ndarray, wall_side: np.ndarray) -> bool:
@@ -284,7 +356,7 @@ class Ignition:
         self._pose = np.zeros(5)  # x, y, theta, path length, |turn|
         self._speed = 0.0
         self._yaw_rate = 0.0
-        self._track: list[tuple[float, float, float, float, float]] = []
+        self._track: deque[tuple[float, float, float, float, float, float]] = deque()
         # absolute readings: (t_s, kind, payload)
         self._ranges: list[tuple[float, float, float, float, float]] = []  # t, mark_e, mark_n, range, sigma
         self._fixes: list[tuple[float, float, float, float]] = []  # t, e, n, sigma
@@ -320,8 +392,9 @@ class Ignition:
         self._t = t_s
         self._track.append((t_s, x, y, th, s, turned))
         horizon = t_s - self.config.window_s - 5.0
-        if len(self._track) > 2048 and self._track[0][0] < horizon:
-            self._track = [p for p in self._track if p[0] >= horizon]
+        if len(self._track) > 2048:  # drop the points older than the window from the left: O(1) a sample
+            while self._track[0][0] < horizon:
+                self._track.popleft()
 
     def at(self, t_s: float) -> StartState | None:
         """Advance to ``t_s`` without a reading (with a user pose: the start state)."""
@@ -411,6 +484,10 @@ class Ignition:
                                 c.speed_sigma_mps if self.has_wheel else UNKNOWN_SPEED_SIGMA_MPS, source)
         return self.state
 
+    def _plausible(self, x: np.ndarray) -> bool:
+        """Whether a solution's position is on the road, not a mirror image behind a wall (:func:`between_walls`)."""
+        return not len(self._tags) or between_walls(x[:2], self._tags, self._walls)
+
     def _solve(self, ranges: np.ndarray, fixes: np.ndarray, compass: np.ndarray):
         """Best (east, north, yaw) now, its sigmas and source; None while undetermined or ambiguous."""
         c = self.config
@@ -441,48 +518,38 @@ class Ignition:
         f_sig = np.sqrt(fixes[:, 3] ** 2 + f_dr**2) if len(fixes) else np.zeros(0)
         th_now = float(now_dr[2])
 
-        def residual(x: np.ndarray) -> np.ndarray:
-            e, n, yaw = x if x.size == 3 else (x[0], x[1], 0.0)
-            phi = yaw - th_now  # start frame -> local frame
-            cp, sp = math.cos(phi), math.sin(phi)
-            out = []
-            if len(ranges):
-                pe = e + cp * r_rel[:, 0] - sp * r_rel[:, 1]
-                pn = n + sp * r_rel[:, 0] + cp * r_rel[:, 1]
-                out.append((np.hypot(pe - ranges[:, 1], pn - ranges[:, 2]) - ranges[:, 3]) / r_sig)
-            if len(fixes):
-                pe = e + cp * f_rel[:, 0] - sp * f_rel[:, 1]
-                pn = n + sp * f_rel[:, 0] + cp * f_rel[:, 1]
-                out.append((pe - fixes[:, 1]) / f_sig)
-                out.append((pn - fixes[:, 2]) / f_sig)
-            if len(compass):
-                d = yaw + c_dth - compass[:, 1]
-                out.append(np.arctan2(np.sin(d), np.cos(d)) / c.compass_sigma_rad)
-            return np.concatenate(out)
+        def residuals(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """Whitened residuals (S, N) and their analytic Jacobian (S, N, p) at S candidate starts (rows of X).
 
-        def jacobian(x: np.ndarray) -> np.ndarray:
-            """d residual / d (east, north[, yaw]), analytic (a numerical one doubled the cost of waiting)."""
-            e, n, yaw = x if x.size == 3 else (x[0], x[1], 0.0)
-            phi = yaw - th_now
-            cp, sp = math.cos(phi), math.sin(phi)
-            rows = []
+            X holds (east, north, yaw), or (east, north) with a free heading (yaw 0).
+            """
+            X = np.atleast_2d(X)
+            e, n = X[:, :1], X[:, 1:2]
+            phi = (X[:, 2:3] if X.shape[1] == 3 else np.zeros_like(e)) - th_now  # start frame -> local frame
+            cp, sp = np.cos(phi), np.sin(phi)
+            f, rows = [], []
             if len(ranges):
-                de = cp * r_rel[:, 0] - sp * r_rel[:, 1]  # reading's offset from now, local frame
+                de = cp * r_rel[:, 0] - sp * r_rel[:, 1]  # each reading's offset from now, local frame
                 dn = sp * r_rel[:, 0] + cp * r_rel[:, 1]
                 ue, un = e + de - ranges[:, 1], n + dn - ranges[:, 2]
-                dist = np.maximum(np.hypot(ue, un), 1e-9)
+                dist = np.hypot(ue, un)
+                f.append((dist - ranges[:, 3]) / r_sig)
+                dist = np.maximum(dist, 1e-9)
                 ue, un = ue / dist / r_sig, un / dist / r_sig
-                rows.append(np.column_stack([ue, un, un * de - ue * dn]))
+                rows.append(np.stack([ue, un, un * de - ue * dn], axis=-1))
             if len(fixes):
                 de = cp * f_rel[:, 0] - sp * f_rel[:, 1]
                 dn = sp * f_rel[:, 0] + cp * f_rel[:, 1]
-                one, zero = 1.0 / f_sig, np.zeros(len(fixes))
-                rows.append(np.column_stack([one, zero, -dn * one]))
-                rows.append(np.column_stack([zero, one, de * one]))
+                f += [(e + de - fixes[:, 1]) / f_sig, (n + dn - fixes[:, 2]) / f_sig]
+                one, zero = np.broadcast_to(1.0 / f_sig, de.shape), np.zeros_like(de)
+                rows += [np.stack([one, zero, -dn * one], axis=-1), np.stack([zero, one, de * one], axis=-1)]
             if len(compass):
-                rows.append(np.column_stack([np.zeros((len(compass), 2)), np.full(len(compass), 1.0 / c.compass_sigma_rad)]))
-            J = np.concatenate(rows)
-            return J if x.size == 3 else J[:, :2]
+                d = (X[:, 2:3] if X.shape[1] == 3 else np.zeros_like(e)) + c_dth - compass[:, 1]
+                f.append(np.arctan2(np.sin(d), np.cos(d)) / c.compass_sigma_rad)
+                gain = np.broadcast_to(1.0 / c.compass_sigma_rad, d.shape)
+                rows.append(np.stack([np.zeros_like(d), np.zeros_like(d), gain], axis=-1))
+            J = np.concatenate(rows, axis=1)
+            return np.concatenate(f, axis=1), J[..., : X.shape[1]]
 
         starts = []
         if len(fixes):
@@ -500,15 +567,20 @@ class Ignition:
                 continue
             for yaw in yaws:
                 starts.append(np.array([a[0], a[1], yaw]))
+        # refine the minima that can be the start or its rival: the best plausible one and those within the rival margin of it
+        minima = [(x, cost) for x, cost in _distinct_minima(residuals, np.array(starts)) if self._plausible(x)]
+        if not minima:
+            return None
         fits = []
-        for x0 in starts:
+        for x0 in [x for x, cost in minima if cost <= minima[0][1] + c.chi2_margin / 2 + 1.0]:
             try:
-                fit = least_squares(residual, x0, jac=jacobian, loss="soft_l1", f_scale=2.0, max_nfev=100, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+                fit = least_squares(lambda x: residuals(x)[0][0], x0, jac=lambda x: residuals(x)[1][0], loss="soft_l1", f_scale=_ROBUST_SCALE,
+                                    max_nfev=100, xtol=1e-12, ftol=1e-12, gtol=1e-12)
             except (ValueError, np.linalg.LinAlgError):
                 continue
             if np.all(np.isfinite(fit.x)):
                 fits.append(fit)
-        plausible = [f for f in fits if between_walls(f.x[:2], self._tags, self._walls)] if len(self._tags) else fits
+        plausible = [f for f in fits if self._plausible(f.x)]
         if not plausible:
             return None
         best = min(plausible, key=lambda f: f.cost)

@@ -174,6 +174,38 @@ def test_a_turn_near_one_wall_resolves_the_mirror():
     assert abs(math.remainder(state.yaw_rad - yaw, 2 * math.pi)) < 4 * state.yaw_sigma_rad
 
 
+@pytest.mark.parametrize("compass", [False, True])
+def test_the_batched_multi_start_keeps_every_minimum_least_squares_finds_that_can_matter(monkeypatch, compass):
+    """The batched descent (``_distinct_minima``) stands in for one ``least_squares`` call per start: on a
+    one-wall straight road (two mirror minima and the turned tracks), with and without the compass, the best
+    minimum of the per-start solves and every one within the rival margin of it are among its minima, at
+    the same place and cost."""
+    seen = []
+    real = ignition._distinct_minima
+
+    def recording(residuals, starts, **kwargs):
+        minima = real(residuals, starts, **kwargs)
+        seen.append((residuals, starts, minima))
+        return minima
+
+    monkeypatch.setattr(ignition, "_distinct_minima", recording)
+    tags, side = wall_tags(walls=(+1,))
+    ig = Ignition(tags, side)
+    feed(ig, 12.0, heard=tags, compass=compass, seed=4)
+    assert len(seen) >= 5
+    margin = IgnitionConfig().chi2_margin / 2
+    for residuals, starts, minima in seen[::2]:
+        fits = [ignition.least_squares(lambda x: residuals(x)[0][0], x0, jac=lambda x: residuals(x)[1][0], loss="soft_l1",
+                                       f_scale=2.0, max_nfev=100, xtol=1e-12, ftol=1e-12, gtol=1e-12) for x0 in starts]
+        best = min(f.cost for f in fits)
+        mattering = [f for f in fits if f.cost <= best + margin]
+        assert len(mattering) >= 2  # the mirror
+        for f in mattering:
+            same = [cost for x, cost in minima
+                    if math.hypot(*(x[:2] - f.x[:2])) < 1e-3 and abs(math.remainder(x[2] - f.x[2], 2 * math.pi)) < 1e-4]
+            assert same and abs(same[0] - f.cost) < 1e-6 * (1.0 + f.cost), (f.x, f.cost, minima)
+
+
 @pytest.mark.parametrize("position, expected", [
     ((10.0, 0.0), True),  # on the road
     ((10.0, 2.9), True),  # beside the left wall
