@@ -99,8 +99,8 @@ def csv_text(estimate: Estimate) -> str:
     """The estimate as CSV with :data:`CSV_COLUMNS` (empty cells where not
     estimated or not finite), each value in Python's shortest round-trip repr."""
     table = estimate.table()
-    cells = [float_texts(table[c], nan="", inf="", minus_inf="") for c in CSV_COLUMNS]
-    return "\n".join([",".join(CSV_COLUMNS), *map(",".join, zip(*cells))]) + "\n"
+    cells = [float_texts(table[c], nan=b"", inf=b"", minus_inf=b"") for c in CSV_COLUMNS]
+    return b"\n".join([",".join(CSV_COLUMNS).encode(), *map(b",".join, zip(*cells)), b""]).decode()
 
 
 def export_estimate(estimate: Estimate, origin: GeoOrigin, folder: str | os.PathLike, stem: str | None = None) -> dict[str, Path]:
