@@ -4,7 +4,8 @@ messages from templates; every message is byte for byte what it wrote with
 Python's repr per value (the reference encoders here): random bit patterns,
 subnormals, -0.0, both sides of each place where msgspec's layout of a float
 leaves repr's (1e-9, 1e-4, 1e16), NaN as null, +-inf as +-1e999, integer
-ids beyond 2**53."""
+ids beyond 2**53. The ROS 2 bag's messages, encoded as one array, are byte
+for byte rosbags' serialization of each."""
 
 from __future__ import annotations
 
@@ -24,6 +25,7 @@ from graphpos.io.geo import enu_to_geodetic
 from graphpos.io.mcap_container import read_mcap_contents
 from graphpos.io.mcap_drive import (_ESTIMATE_FIELDS, VIEW_RATE_HZ, _encode_columns, _estimate_payloads, _location_fixes,
                                     _poses, _thin, _time_ns, float_texts)
+from graphpos.io.ros2_bag import _messages
 
 BOUNDARIES = [v for edge in (1e-9, 1e-5, 1e-4, 1e16) for v in (np.nextafter(edge, 0.0), edge, np.nextafter(edge, np.inf))]
 ADVERSARIAL = np.concatenate([
@@ -187,3 +189,57 @@ def test_drive_file_is_written_as_before_and_reads_back_bit_exact(tmp_path):
     for kind, channel in drive.channels.items():
         assert_same_columns(channel.columns, back.channels[kind].columns)
     assert_same_estimates(estimates, read_estimates(path))
+
+
+def rosbags_messages(est: Estimate) -> list[bytes]:
+    """The CDR of each output epoch as rosbags' serializer gives it (the ROS 2 bag's messages before one array)."""
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    T = store.types
+    vector, n = T["geometry_msgs/msg/Vector3"], len(est)
+    yaw = np.zeros(n) if est.yaw_rad is None else np.nan_to_num(est.yaw_rad)
+    nan = np.full(n, np.nan)
+    forward = est.v_east_mps * np.cos(yaw) + est.v_north_mps * np.sin(yaw) if est.has_velocity else nan
+    left = -est.v_east_mps * np.sin(yaw) + est.v_north_mps * np.cos(yaw) if est.has_velocity else nan
+    out = []
+    for k in range(n):
+        whole = math.floor(est.t_s[k])
+        nanos = int(np.round((est.t_s[k] - whole) * 1e9))
+        covariance = np.zeros((6, 6))
+        if est.cov_en_m2 is not None:
+            covariance[:2, :2] = est.cov_en_m2[k]
+        msg = T["nav_msgs/msg/Odometry"](
+            header=T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=whole + nanos // 10**9, nanosec=nanos % 10**9),
+                                            frame_id="map"),
+            child_frame_id="base_link",
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                pose=T["geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](x=est.east_m[k], y=est.north_m[k], z=0.0),
+                                                 orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=np.sin(yaw[k] / 2),
+                                                                                               w=np.cos(yaw[k] / 2))),
+                covariance=covariance.ravel()),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](linear=vector(x=forward[k], y=left[k], z=0.0), angular=vector(x=np.nan, y=np.nan, z=np.nan)),
+                covariance=np.zeros(36)),
+        )
+        out.append(bytes(store.serialize_cdr(msg, "nav_msgs/msg/Odometry")))
+    return out
+
+
+@pytest.mark.parametrize("n", [0, 1, 300])
+@pytest.mark.parametrize("optional", [True, False])
+def test_ros2_bag_messages_are_rosbags_cdr(monkeypatch, n, optional):
+    monkeypatch.setattr("graphpos.io.ros2_bag._BATCH_MESSAGES", 128)
+    rng = np.random.default_rng(n)
+    column = lambda: np.resize(rng.permutation(ADVERSARIAL), n)  # noqa: E731
+    t = np.sort(rng.uniform(-2e9, 2e9, n))
+    t[: n // 2] = np.round(t[: n // 2], 9)  # whole nanoseconds, and times that round up to the next second
+    if n > 2:
+        t[1] = 12.9999999999
+    with np.errstate(all="ignore"):  # the velocity turned by yaw of inf and 1e308
+        est = (Estimate("x", t, column(), column(), column(), column(), column(), cov_en_m2=column().repeat(4).reshape(n, 2, 2))
+               if optional else Estimate("x", t, column(), column()))
+        record_ns, data = zip(*_messages(est)) if n else ([], [])
+        want = rosbags_messages(est)
+    assert list(data) == want
+    assert list(record_ns) == [max(int(np.frombuffer(m[4:8], "<i4")[0]) * 10**9 + int(np.frombuffer(m[8:12], "<u4")[0]), 0) for m in want]
