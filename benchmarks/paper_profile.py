@@ -139,9 +139,9 @@ def run_tables(seeds: tuple[int, ...], profile: str = "paper", extra: dict[str, 
             ours = []
             for seed in seeds:
                 src = SimSource(exp.scenario, exp.pattern, seed, overrides_json=overrides_json(exp, profile, extra))
-                key = (src, row.estimator, row.layout)
+                key = (src, row.estimator, row.layout, row.held)
                 if key not in cache:
-                    res = run_job(Job(src, row.estimator, layout=row.layout))
+                    res = run_job(Job(src, row.estimator, layout=row.layout, hold_last_output=row.held))
                     if not res.ok:
                         errors.append(f"{exp.key} {row.estimator} seed {seed}: {res.error}")
                     cache[key] = res.metrics if res.ok else None

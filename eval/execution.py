@@ -123,6 +123,10 @@ class Job:
         A sensor profile (``--profile``), passed to the estimator.
     keep_estimate : bool
         Send the estimate back (for plots and exports).
+    hold_last_output : bool
+        Score the estimate with its last output held to the end of the
+        drive (:func:`eval.metrics.held_to_end`); the estimate sent back
+        is the estimator's own.
     tag : dict
         The caller's labels (experiment, pattern, seed ...), returned as given.
     """
@@ -135,6 +139,7 @@ class Job:
     initial_pose: Any = None
     profile: Any = None
     keep_estimate: bool = False
+    hold_last_output: bool = False
     tag: dict[str, Any] = field(default_factory=dict)
 
 
@@ -173,7 +178,7 @@ def _range_model(spec: Any) -> Any:
 
 def run_job(job: Job) -> JobResult:
     """Build the drive and the estimator, run it on the drive without truth, score against the truth; never raises."""
-    from eval.metrics import evaluate_estimate
+    from eval.metrics import evaluate_estimate, held_to_end
     from graphpos.registry import make_estimator
     from graphpos.settings import config_dict
 
@@ -189,7 +194,8 @@ def run_job(job: Job) -> JobResult:
         estimate = est.run(drive.without_truth())  # truth is for scoring only (issue 13)
         if estimate.wall_time_s != estimate.wall_time_s:  # NaN: the estimator did not time itself
             estimate = dataclasses.replace(estimate, wall_time_s=time.perf_counter() - t0)
-        result.metrics = evaluate_estimate(drive, estimate)
+        scored = held_to_end(estimate, drive.truth.t_s[-1]) if job.hold_last_output and drive.has("truth") else estimate
+        result.metrics = evaluate_estimate(drive, scored)
         result.metrics["diagnostics"] = estimate.diagnostics
         if job.keep_estimate:
             result.estimate = estimate

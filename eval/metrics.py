@@ -223,6 +223,33 @@ def wheel_speed_error(drive: Drive) -> tuple[np.ndarray, np.ndarray]:
     return wheel.t_s[at.mask], wheel.speed_mps[at.mask] - at.speed_mps
 
 
+def held_to_end(estimate: Estimate, end_s: float) -> Estimate:
+    """The estimate with its last output repeated, at its median output interval, until ``end_s``.
+
+    What a positioning system reports once its estimator falls silent (an
+    RFID-only estimator past the last tag it hears): its last position.
+    Scoring this is how a paper's "whole test" counts an RFID-only system
+    over the stretches it does not cover (song2014 Table 4: its RFID-based
+    positioning errs up to 19.01 m over the whole test, 8.57 m in the
+    tunnel). An estimate with fewer than two outputs, or whose last output
+    is within one interval of ``end_s``, is returned as it is.
+    """
+    if len(estimate) < 2:
+        return estimate
+    period_s = float(np.median(np.diff(estimate.t_s)))
+    if not period_s > 0 or end_s - estimate.t_s[-1] < period_s:
+        return estimate
+    extra = estimate.t_s[-1] + period_s * np.arange(1, int(math.floor((end_s - estimate.t_s[-1]) / period_s)) + 1)
+    last = np.full(extra.size, len(estimate) - 1)
+
+    def held(column: np.ndarray | None) -> np.ndarray | None:
+        return None if column is None else np.concatenate([column, column[last]])
+
+    return Estimate(estimate.name, np.concatenate([estimate.t_s, extra]), held(estimate.east_m), held(estimate.north_m),
+                    held(estimate.v_east_mps), held(estimate.v_north_mps), held(estimate.yaw_rad), held(estimate.cov_en_m2),
+                    estimate.rate_hz, estimate.diagnostics, estimate.wall_time_s)
+
+
 def evaluate_estimate(drive: Drive, estimate: Estimate) -> dict[str, Any]:
     """Every figure of one estimate on one drive, per window.
 

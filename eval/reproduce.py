@@ -119,7 +119,7 @@ PROFILE_TEXT = {
 #: A published RMS "matches" when ours is within this fraction of it.
 MATCH_TOLERANCE = 0.30
 
-_RunKey = tuple  # (SimSource or "plaza" or "mrclam/<robot>", estimator, layout)
+_RunKey = tuple  # (SimSource or "plaza" or "mrclam/<robot>", estimator, layout, held: see Row.held)
 
 
 def default_plaza_path() -> Path:
@@ -156,11 +156,11 @@ class _Runs:
         self.jobs: dict[_RunKey, Job] = {}
 
     def add(self, source: Any, estimator: str, layout: str | None, keep: bool = False,
-            range_model: Any = None, name: str = "plaza") -> _RunKey:
-        key = (source if isinstance(source, SimSource) else name, estimator, layout)
+            range_model: Any = None, name: str = "plaza", held: bool = False) -> _RunKey:
+        key = (source if isinstance(source, SimSource) else name, estimator, layout, held)
         old = self.jobs.get(key)
         if old is None or (keep and not old.keep_estimate):
-            self.jobs[key] = Job(source, estimator, layout=layout, keep_estimate=keep, range_model=range_model)
+            self.jobs[key] = Job(source, estimator, layout=layout, keep_estimate=keep, range_model=range_model, hold_last_output=held)
         return key
 
 
@@ -192,7 +192,12 @@ def with_profile(overrides_json: str, profile: str) -> str:
 
 def _results(res: dict, sources: list[SimSource], row: Row) -> list[JobResult]:
     """A row's results on some drives (none for the runs --quick leaves out)."""
-    return [res[key] for s in sources if (key := (s, row.estimator, row.layout)) in res]
+    return [res[key] for s in sources if (key := _row_key(s, row)) in res]
+
+
+def _row_key(source: SimSource, row: Row) -> _RunKey:
+    """The run of a table's row on a drive."""
+    return source, row.estimator, row.layout, row.held
 
 
 def window_stat(r: JobResult, window: str, stat: str) -> float:
@@ -324,7 +329,7 @@ def _zones(exp: Experiment, res: dict[_RunKey, JobResult], sources: dict[str, li
     for row in exp.all_rows():
         for p in profiles:
             for s in sources[p]:
-                r = res.get((s, row.estimator, row.layout))
+                r = res.get(_row_key(s, row))
                 if r is not None and r.ok:
                     zones += [w for w in r.metrics["windows"] if w.startswith("zone:") and w not in zones]
     return zones
@@ -359,7 +364,7 @@ def _add_bound(exp: Experiment, header: list[str], rows: list[list[str]], record
     header += [f"RMS / bound, {p}" for p in profiles]
     for row, line, record in zip(exp.all_rows(), rows, records):
         eff = {p: [bounds[(s, row.layout)].efficiency(row.estimator, window_stat(res[key], exp.window, "rms_m"), exp.window)
-                   for s in sources[p] if (key := (s, row.estimator, row.layout)) in res] for p in profiles}
+                   for s in sources[p] if (key := _row_key(s, row)) in res] for p in profiles}
         kind = bound_kind(row.estimator)
         line += [_efficiency_cell(eff[p], bound_label(row.estimator), bool(_results(res, sources[p], row))) for p in profiles]
         record["efficiency"] = {p: {"bound_kind": kind, "window": exp.window, "values": v} for p, v in eff.items()}
@@ -543,7 +548,7 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
                     if quick and p != PAPER_PROFILE and len(profiles) > 1 and not (
                             row in exp.rows or row.estimator in QUICK_CONTRAST_GRAPHS):
                         continue  # --quick: the other profiles are the papers' rows' contrast
-                    runs.add(src, row.estimator, row.layout, keep=seed == 0 and p == primary)
+                    runs.add(src, row.estimator, row.layout, keep=seed == 0 and p == primary, held=row.held)
     degraded_seeds = 1 if quick else n_seeds
     degraded_srcs = {label: [SimSource("paper-straight", None, seed, duration_s=duration_s,
                                        overrides_json=with_profile("", profiles[primary]),
@@ -658,8 +663,8 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
             plot_key = (first, tuple((r.estimator, r.layout) for r in exp.all_rows()))
             if plot_key not in plotted:  # song2014 Tables 4 and 5/6 show the same runs in two windows
                 plotted.add(plot_key)
-                estimates = [res[(first, r.estimator, r.layout)].estimate for r in exp.all_rows()
-                             if res[(first, r.estimator, r.layout)].ok and len(res[(first, r.estimator, r.layout)].estimate)]
+                estimates = [res[_row_key(first, r)].estimate for r in exp.all_rows()
+                             if res[_row_key(first, r)].ok and len(res[_row_key(first, r)].estimate)]
                 if estimates:
                     drive = load_drive(first)
                     sub = out / safe_name(exp.key)
@@ -776,8 +781,8 @@ def _speed_section(report: Report, res: dict, srcs: list[SimSource], tables: dic
     if not srcs:
         return
     by_name: dict[str, list[JobResult]] = defaultdict(list)
-    for (src, name, _layout), r in res.items():
-        if src in srcs and r.ok and r.metrics["velocity_provided"]:
+    for (src, name, _layout, held), r in res.items():
+        if src in srcs and not held and r.ok and r.metrics["velocity_provided"]:
             by_name[name].append(r)
     if not by_name:
         return
@@ -799,7 +804,7 @@ def _degraded_section(report: Report, res: dict, degraded: dict[str, list[SimSou
     for name, layout in DEGRADED_ESTIMATORS:
         row = [name, layout]
         for label, srcs in degraded.items():
-            rs = [res[(s, name, layout)] for s in srcs]
+            rs = [res[(s, name, layout, False)] for s in srcs]
             row.append(seeds_cell(rs, "in_tunnel", "rms_m"))
             entry = {"estimator": name, "variant": label, "rms_in_tunnel_m": [window_stat(r, "in_tunnel", "rms_m") for r in rs]}
             for window in sorted({w for r in rs if r.ok for w in r.metrics["windows"] if w.startswith("fault:")}):
@@ -820,7 +825,7 @@ def _degraded_section(report: Report, res: dict, degraded: dict[str, list[SimSou
 
 
 def _plaza_section(report: Report, res: dict, drive, folder: Path, tables: dict) -> None:
-    rs = {name: res[("plaza", name, None)] for name in PLAZA_ESTIMATORS}
+    rs = {name: res[("plaza", name, None, False)] for name in PLAZA_ESTIMATORS}
     header = ["estimator", "max [m]", "RMS [m]", "mean [m]", "p95 [m]", "scored / outputs", "rate [Hz]", "wall [s]"]
     rows = []
     for name, r in rs.items():
@@ -870,7 +875,7 @@ def _mrclam_section(report: Report, res: dict, drives: dict[int, Drive], folder:
     header = ["estimator", "sensors", *[f"robot {n} RMS [m]" for n in robots], "mean RMS [m]"]
     rows, record = [], []
     for name in MRCLAM_ESTIMATORS:
-        rs = [res[(f"mrclam/{n}", name, None)] for n in robots]
+        rs = [res[(f"mrclam/{n}", name, None, False)] for n in robots]
         cells = [_real_cell(r) for r in rs]
         rows.append([name, sensors_of(name, list(drives[robots[0]].channels)), *cells,
                      fmt(mean_stat(rs, WHOLE, "rms_m"))
@@ -889,7 +894,7 @@ def _mrclam_section(report: Report, res: dict, drives: dict[int, Drive], folder:
     sec.table(header, rows)
     shown = robots[0]
     estimates = [r.estimate for name in MRCLAM_ESTIMATORS
-                 for r in [res[(f"mrclam/{shown}", name, None)]] if r.ok and r.estimate is not None and len(r.estimate)]
+                 for r in [res[(f"mrclam/{shown}", name, None, False)]] if r.ok and r.estimate is not None and len(r.estimate)]
     if estimates:
         caption = f"MRCLAM robot {shown} alone ({drives[shown].name}); the table gives every robot."
         sec.figure(plots.trajectories(drives[shown], estimates, folder / "mrclam" / "trajectories.png"), caption)

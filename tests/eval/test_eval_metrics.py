@@ -122,6 +122,21 @@ def test_evaluate_estimate_per_window(drive):
     assert r["unscored_outputs"] == 0
 
 
+def test_held_to_end_repeats_the_last_output_until_the_end(drive):
+    """An estimator silent after 4 s (of the truth's 10) is scored with its last output held, at its own interval."""
+    t = np.arange(0.0, 5.0)
+    est = Estimate("x", t, 2.0 * t, np.zeros(5), cov_en_m2=np.tile(np.eye(2), (5, 1, 1)))
+    held = metrics.held_to_end(est, 10.0)
+    assert held.t_s.tolist() == list(range(11)) and np.all(held.east_m[5:] == 8.0) and held.cov_en_m2.shape == (11, 2, 2)
+    whole = metrics.evaluate_estimate(drive, held)["windows"][metrics.WHOLE]["position"]
+    # the truth drives on east at 2 m/s: 2, 4, ... 12 m off at 5 ... 10 s
+    assert whole["max_m"] == pytest.approx(12.0)
+    assert whole["rms_m"] == pytest.approx(math.sqrt(sum((2.0 * k) ** 2 for k in range(1, 7)) / 11))
+    assert metrics.held_to_end(held, 10.4) is held  # its last output within one interval of the end
+    one = Estimate("x", np.array([1.0]), np.array([2.0]), np.zeros(1))
+    assert metrics.held_to_end(one, 10.0) is one
+
+
 def test_unscored_epochs_outside_truth(drive):
     t = np.array([-1.0, 0.0, 5.0, 20.0])
     est = Estimate("x", t, 2 * t, np.zeros(4))
