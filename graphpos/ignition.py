@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.stats import chi2
 
 from graphpos.errors import ConfigError
 
@@ -195,8 +196,13 @@ UNKNOWN_SPEED_SIGMA_MPS = 5.0
 MAX_ODOMETRY_GAP_S = 2.0
 #: What an estimator's diagnostics say (``not_started``) when it never started.
 NOT_STARTED = "no start state: give --initial-pose, or a drive with fixes or ranges while moving"
-#: Without dead reckoning, readings this close to the latest one are solved together, s.
+#: Without dead reckoning, readings this close to the latest one are solved together, s, if they agree
+#: (else the latest epoch's alone: :data:`_MIXED_PLACES`).
 NO_DR_WINDOW_S = 1.0
+#: Readings this close in time belong to one epoch (one scan), s.
+SAME_EPOCH_S = 0.05
+#: What :meth:`Ignition._solve` gives when readings of several epochs, which no dead reckoning relates, disagree.
+_MIXED_PLACES = object()
 #: Number of trial headings and trial positions per heading of the multi-start solve.
 _HEADING_STARTS = 8
 _POSITION_STARTS = 6
@@ -334,8 +340,10 @@ class Ignition:
     has_wheel : bool
         Whether wheel speeds will come. Without them there is no dead
         reckoning: the start speed is unknown, only the readings of the last
-        :data:`NO_DR_WINDOW_S` are solved together, and the heading comes
-        from the compass or is left unknown (yaw 0 with a sigma of pi).
+        :data:`NO_DR_WINDOW_S` are solved together (those of the latest
+        epoch alone when they disagree: taken at places nothing relates),
+        and the heading comes from the compass or is left unknown (yaw 0
+        with a sigma of pi).
         With them, dead reckoning starts at the first wheel speed: readings
         taken before it are not used (they could not be placed: the
         vehicle's motion until then is unknown, not a standstill).
@@ -475,7 +483,13 @@ class Ignition:
         if not (len(fixes) or len(ranges)):
             return None
         self.attempts += 1
-        solution = self._solve(ranges, fixes, compass)
+        solution = self._solve(ranges, fixes, compass, check_consistency=not self.has_wheel)
+        if solution is _MIXED_PLACES:
+            # no dead reckoning relates the window's readings and they disagree: the vehicle moved between them
+            # (on the long-tunnel drive, 22 m between two 1 Hz scans); the latest epoch's alone
+            latest = max(a[:, 0].max() for a in (ranges, fixes) if len(a)) - SAME_EPOCH_S
+            ranges, fixes, compass = (a[a[:, 0] >= latest] for a in (ranges, fixes, compass))
+            solution = self._solve(ranges, fixes, compass)
         if solution is None:
             return None
         e, n, yaw, sigma_p, sigma_yaw, source = solution
@@ -488,8 +502,13 @@ class Ignition:
         """Whether a solution's position is on the road, not a mirror image behind a wall (:func:`between_walls`)."""
         return not len(self._tags) or between_walls(x[:2], self._tags, self._walls)
 
-    def _solve(self, ranges: np.ndarray, fixes: np.ndarray, compass: np.ndarray):
-        """Best (east, north, yaw) now, its sigmas and source; None while undetermined or ambiguous."""
+    def _solve(self, ranges: np.ndarray, fixes: np.ndarray, compass: np.ndarray, check_consistency: bool = False):
+        """Best (east, north, yaw) now, its sigmas and source; None while undetermined or ambiguous.
+
+        ``check_consistency``: :data:`_MIXED_PLACES` when the best fit's
+        residuals fail a chi-square test (0.1 %) and the readings span more
+        than one epoch.
+        """
         c = self.config
         now_dr = self._pose
         travel = 0.0
@@ -584,6 +603,9 @@ class Ignition:
         if not plausible:
             return None
         best = min(plausible, key=lambda f: f.cost)
+        times = np.concatenate([ranges[:, 0], fixes[:, 0]])
+        if check_consistency and np.ptp(times) > SAME_EPOCH_S and 2.0 * best.cost > chi2.ppf(0.999, max(best.fun.size - best.x.size, 1)):
+            return _MIXED_PLACES
         J = best.jac
         info = J.T @ J
         if np.linalg.cond(info) > 1e10:

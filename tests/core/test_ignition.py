@@ -318,6 +318,27 @@ def test_without_wheel_the_speed_is_unknown_and_the_heading_from_the_compass():
     assert_within_sigmas(state, truth)
 
 
+def test_without_wheel_the_scans_of_different_places_are_not_mixed():
+    """No dead reckoning relates two scans 1 s apart of a vehicle at 22 m/s (22 m): solved together they
+    disagree, and the start comes from the latest scan's readings alone, as if the earlier had not been heard."""
+    tags, side = wall_tags()
+
+    def scan(ig, t_s, east_m, heard):
+        d = np.hypot(heard[:, 0] - east_m, heard[:, 1])
+        near = d <= 9.0
+        ranges = d[near] + np.random.default_rng(int(t_s)).normal(0, 0.3, near.sum())
+        return ig.ranges(t_s, heard[near], ranges, np.full(near.sum(), 0.3))
+
+    across = tags[np.isclose(tags[:, 0], 18.0)]  # the two tags facing each other at east 18 m
+    both = Ignition(tags, side, has_wheel=False)
+    assert scan(both, 0.0, 20.0, across) is None  # ahead of that pair or behind it: it waits
+    state = scan(both, 1.0, 42.0, tags)
+    alone = scan(Ignition(tags, side, has_wheel=False), 1.0, 42.0, tags)
+    assert state is not None and alone is not None
+    assert (state.east_m, state.north_m, state.position_sigma_m) == pytest.approx((alone.east_m, alone.north_m, alone.position_sigma_m), abs=1e-9)
+    assert math.hypot(state.east_m - 42.0, state.north_m) < 4 * state.position_sigma_m
+
+
 def test_without_wheel_or_compass_the_heading_is_left_unknown():
     tags, side = wall_tags()
     ig = Ignition(tags, side, has_wheel=False)
