@@ -18,7 +18,9 @@ state vectors stay as printed:
   (the bearing term only where the reading has a ``bearing_rad``, as a
   camera's has), with 1-sigma ``range_sigma0_m + range_sigma_slope * distance``
   (:meth:`SensorProfile.range_model`). RSS readings are left to their RSS
-  model (itself a calibration).
+  model (itself a calibration);
+- compass yaw: ``reading - compass_bias_rad`` (a compass deviated by its
+  installation).
 
 Its noise levels go to every estimator config that has the matching field
 (:meth:`SensorProfile.tuned`): the heading noise the yaw-rate sensor leaves
@@ -51,6 +53,7 @@ _LIMITS = {
     "range_scale": (0.5, 2.0),
     "range_offset_m": (-10.0, 10.0),
     "range_bearing2_m_per_rad2": (-10.0, 10.0),
+    "compass_bias_rad": (-0.5, 0.5),
 }
 
 
@@ -70,6 +73,8 @@ class SensorProfile:
         Reported ranges' error per squared bearing (m/rad^2), for readings
         with a bearing (a camera's range from a landmark's image, whose error
         grows towards the image's edges: MRCLAM's, :mod:`graphpos.io.mrclam`).
+    compass_bias_rad : float
+        The compass's constant deviation (``reading = yaw + bias``).
     range_sigma0_m, range_sigma_slope : float or None
         1-sigma of a corrected range at zero distance and its growth per
         metre; None: the drive's default range model's.
@@ -92,6 +97,7 @@ class SensorProfile:
     range_scale: float = 1.0
     range_offset_m: float = 0.0
     range_bearing2_m_per_rad2: float = 0.0
+    compass_bias_rad: float = 0.0
     range_sigma0_m: float | None = None
     range_sigma_slope: float | None = None
     range_sigma_scale: float | None = None
@@ -130,6 +136,10 @@ class SensorProfile:
             return {"yaw_rate_radps": (columns["yaw_rate_radps"] - self.gyro_bias_radps) / self.yaw_rate_scale}
         if channel == "wheel" and self.wheel_scale != 1.0:
             return {"speed_mps": columns["speed_mps"] / self.wheel_scale}
+        if channel == "compass" and self.compass_bias_rad != 0.0:
+            from filters.models.angles import wrap_angle
+
+            return {"yaw_rad": wrap_angle(columns["yaw_rad"] - self.compass_bias_rad)}
         if channel == "rfid" and (self.range_scale != 1.0 or self.range_offset_m != 0.0 or self.range_bearing2_m_per_rad2 != 0.0):
             range_m = columns["range_m"]
             bearing = columns.get("bearing_rad")
@@ -172,6 +182,7 @@ class SensorProfile:
             range_scale=self.range_scale * later.range_scale,
             range_offset_m=self.range_offset_m + self.range_scale * later.range_offset_m,
             range_bearing2_m_per_rad2=self.range_bearing2_m_per_rad2 + self.range_scale * later.range_bearing2_m_per_rad2,
+            compass_bias_rad=self.compass_bias_rad + later.compass_bias_rad,
         )
 
     # -- files ----------------------------------------------------------------------

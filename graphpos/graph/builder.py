@@ -137,7 +137,7 @@ class Segment:
     first: int
     t_s: float
     last: int
-    history: tuple[int, int, int, int] = (0, 0, 0, 0)  # sizes of the history lists when it began
+    history: tuple[int, ...] = (0, 0, 0, 0, 0)  # sizes of the history lists when it began
 
     def contains(self, k: int) -> bool:
         return self.first <= k <= self.last
@@ -260,6 +260,10 @@ class GraphBuilder:
         self.fixed_factors = gtsam.NonlinearFactorGraph()
         self.range_records: list[RangeRecord] = []
         self.odometry_records: list[tuple[int, OdometryDelta]] = []
+        #: (keyframe, compass yaw) of every compass factor, rebuilt by :meth:`graph` with or without the compass bias.
+        self.compass_records: list[tuple[int, float]] = []
+        #: Prior sigma of the compass bias (rad) :meth:`graph` estimates; None: the compass factors as built online.
+        self.compass_bias_sigma_rad: float | None = None
         self.wheel_scale: float | None = None  # None: wheel factors as built online
         self.wheel_drift_density: float | None = None  # with wheel_scale None: rebuild the drift term at this density
         self.landmark_positions: dict[int, np.ndarray] = {}
@@ -453,7 +457,8 @@ class GraphBuilder:
         if self._lost_s is not None:
             self.diagnostics["odometry_gaps"].append({"from_s": self._lost_s, "to_s": t_s, "restart": None})
         first = self.last_keyframe + 1
-        history = (self.fixed_factors.size(), len(self.range_records), len(self.odometry_records), self.diagnostics["ranges"])
+        history = (self.fixed_factors.size(), len(self.range_records), len(self.odometry_records), len(self.compass_records),
+                   self.diagnostics["ranges"])
         self.segments.append(Segment(first, t_s, first - 1, history))
         self.model.start_segment(first)
         self.odometry.start(t_s)
@@ -499,10 +504,11 @@ class GraphBuilder:
     def _discard_segment(self) -> None:
         """Forget the current, never started track: its keyframes, its factors in the history and its keyframe numbers."""
         seg = self.segments.pop()
-        n_fixed, n_ranges, n_odometry, n_range_factors = seg.history
+        n_fixed, n_ranges, n_odometry, n_compass, n_range_factors = seg.history
         self.fixed_factors.resize(n_fixed)
         del self.range_records[n_ranges:]
         del self.odometry_records[n_odometry:]
+        del self.compass_records[n_compass:]
         self.diagnostics["ranges"] = n_range_factors
         for k in range(seg.first, self.last_keyframe + 1):
             self.states.pop(k, None)
@@ -650,7 +656,9 @@ class GraphBuilder:
         for k, _, entry in ready:
             kind = entry[0]
             if kind == "compass":
-                self._add(inc, [self.model.compass_factor(k, entry[1], c.compass_sigma_rad)])
+                inc.factors.add(self.model.compass_factor(k, entry[1], c.compass_sigma_rad))
+                if self.keep_history:
+                    self.compass_records.append((k, entry[1]))
             elif kind == "fix":
                 _, e, n, s = entry
                 dim = self.model.fix_dim()
@@ -718,12 +726,23 @@ class GraphBuilder:
         """Every factor so far (``keep_history``): ranges built with ``scale`` and ``offset`` (reading units; else
         :attr:`range_offset_m`), wheel factors with
         :attr:`wheel_scale` (else with the drift term at :attr:`wheel_drift_density`, else as built online),
-        their heading loosened by ``extra_turn_density2`` (:meth:`OdometryDelta.with_turn_density`)."""
+        their heading loosened by ``extra_turn_density2`` (:meth:`OdometryDelta.with_turn_density`),
+        compass factors with the compass bias as an unknown when :attr:`compass_bias_sigma_rad` is set
+        (its prior: zero +- that sigma; :meth:`with_compass_frame` gives it a value)."""
         scale = self.range_scale if scale is None else scale
         offset = self.range_offset_m if offset is None else offset
         g = gtsam.NonlinearFactorGraph(self.fixed_factors)
         for r in self.range_records:
             g.add(self.range_factor(r, scale, offset))
+        sigma = self.config.compass_sigma_rad
+        if self.compass_bias_sigma_rad is not None and self.compass_records:
+            for f in self.model.compass_bias_prior(0.0, self.compass_bias_sigma_rad)[0]:
+                g.add(f)
+            for k, yaw in self.compass_records:
+                g.add(self.model.compass_bias_factor(k, yaw, sigma))
+        else:
+            for k, yaw in self.compass_records:
+                g.add(self.model.compass_factor(k, yaw, sigma))
         for k, delta in self.odometry_records:
             if self.wheel_scale is None and self.wheel_drift_density is not None:
                 delta = delta.with_drift_density(self.wheel_drift_density)
@@ -731,6 +750,16 @@ class GraphBuilder:
                 delta = delta.with_turn_density(extra_turn_density2)
             g.add(self.model.wheel_factor(k, delta, self.wheel_scale))
         return g
+
+    def with_compass_frame(self, values: gtsam.Values) -> gtsam.Values:
+        """``values`` with the compass frame (bias 0) added when :meth:`graph` estimates the bias and they lack it."""
+        from graphpos.graph.models import COMPASS_BIAS_KEY
+
+        if self.compass_bias_sigma_rad is None or not self.compass_records or values.exists(COMPASS_BIAS_KEY):
+            return values
+        out = gtsam.Values(values)
+        out.insert(COMPASS_BIAS_KEY, self.model.compass_bias_prior(0.0, self.compass_bias_sigma_rad)[1])
+        return out
 
     def history_values(self, recent: gtsam.Values) -> gtsam.Values:
         """Values of every variable of :meth:`graph`: ``recent``'s, else the causal ones.

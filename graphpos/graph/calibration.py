@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from graphpos.graph.config import GraphConfig
+from graphpos.graph.models import COMPASS_BIAS_KEY
 
 #: Tolerance of the scale search (dimensionless).
 SCALE_TOLERANCE = 2e-4
@@ -168,6 +169,7 @@ MIN_TRAVEL_M = 2.0
 #: Limits of the fitted corrections (beyond them the fit is not trusted and clamped).
 YAW_RATE_SCALE_BOUNDS = (0.7, 1.4)
 GYRO_BIAS_BOUND_RADPS = math.radians(2.0)
+COMPASS_BIAS_BOUNDS_RAD = (-0.5, 0.5)
 
 
 def _windows(builder, values, since_keyframe: int = 0) -> dict[str, np.ndarray]:
@@ -301,6 +303,8 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
       configured scale density: fitted the same way, it came out too small
       on simulated paper drives (mean RMS over 6 seeds 0.439 m against
       0.355 m with the default density);
+    - compass: the bias the solve carried as an unknown, where it did
+      (``compass_bias``, :meth:`GraphBuilder.graph`);
     - ranges (reported ranges only): the range scale found by the profile
       likelihood search (:func:`estimate_range_scale`) or 1, and the offset,
       camera bearing term, sigma and correlation factor of
@@ -339,6 +343,9 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
         turn_scale_density_per_sqrt_s=math.sqrt(turn_var),
     )
     fields.update(fit_range_terms(builder, values) or {})
+    if builder.compass_bias_sigma_rad is not None and values.exists(COMPASS_BIAS_KEY):
+        lo, hi = COMPASS_BIAS_BOUNDS_RAD
+        fields["compass_bias_rad"] = float(np.clip(builder.model.compass_bias(values), lo, hi))
     return SensorProfile(**fields, source={"drive": drive_name, "estimator": "graph-batch", "windows": int(T.size),
                                            "turned_rad": turned})
 

@@ -37,7 +37,7 @@ from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
 from graphpos.graph.builder import GraphBuilder, Increment
 from graphpos.graph.config import GraphConfig
-from graphpos.graph.models import KeyframeState, make_model
+from graphpos.graph.models import COMPASS_BIAS_KEY, KeyframeState, make_model
 from graphpos.graph.smoothers import MARGINALISE_EVERY_S, FixedLagSmoother, ValuesSource, WindowedIsam2Smoother, gtsam_error
 from graphpos.ignition import NOT_STARTED
 from graphpos.ranging.drive_models import reading_models
@@ -476,7 +476,7 @@ class GraphBatch(_GraphEstimator):
                                            range_offset="estimate" if profile.range_sigma0_m is not None else "off")
         final = GraphBatch(final_config, self.layout, self.range_model, self.initial_pose, profile)
         est = final.run(drive)
-        profile = _with_found_offset(profile, est)
+        profile = _with_found_terms(profile, est)
         refit = fit_range_terms(final.builder, final.values) if bearing else None
         if refit is not None and refit["range_bearing2_m_per_rad2"] != 0.0:
             # the first solve's track had absorbed part of the bearing term (its ranges were uncorrected):
@@ -491,9 +491,10 @@ class GraphBatch(_GraphEstimator):
             release_freed_memory()
             final = GraphBatch(final_config, self.layout, self.range_model, self.initial_pose, profile)
             est = final.run(drive)
-            profile = _with_found_offset(profile, est)
+            profile = _with_found_terms(profile, est)
         self.builder, self.model, self.values, self.config = final.builder, final.model, getattr(final, "values", None), final.config
         diagnostics = {**est.diagnostics, "profile": profile.to_dict(), "range_scale": profile.range_scale, "wheel_scale": profile.wheel_scale,
+                       **({"compass_bias_rad": profile.compass_bias_rad} if "compass_bias_rad" in est.diagnostics else {}),
                        "calibration_pass": {k: first_estimate.diagnostics.get(k) for k in ("range_scale", "wheel_scale", "range_scale_solves")}}
         return dataclasses.replace(est, diagnostics=diagnostics, wall_time_s=time.perf_counter() - t0)
 
@@ -542,6 +543,9 @@ class GraphBatch(_GraphEstimator):
             raise gtsam_error(exc, f"{self.name}: initial estimate") from None
         self.smoother = None  # the seeding pass's Bayes tree is done with: its memory goes before the batch solves
         what = f"{self.name} on '{self._drive_name}'"
+        if self.config.compass_bias == "estimate" and self.builder.compass_records:
+            self.builder.compass_bias_sigma_rad = self.config.compass_bias_sigma_rad
+            initial = self.builder.with_compass_frame(initial)
         fit_wheel = self.config.wheel_scale == "estimate" and self.builder.odometry_records and self.builder.odometry.has_speed
         if self._estimates_range_scale() and self.builder.range_records:
             # the range scale first: the causal pass's ranges (unscaled) would
@@ -567,8 +571,14 @@ class GraphBatch(_GraphEstimator):
         values = offset.values if offset is not None else optimise(graph, initial, self.config, what)
         self.values = values
         covs = None
+        compass = self.builder.compass_bias_sigma_rad is not None and values.exists(COMPASS_BIAS_KEY)
         if self.config.output_covariance:
-            covs = marginal_covariances(graph, values, [self.model.pose_key(k) for k in range(self.builder.last_keyframe + 1)], what)
+            keys = [self.model.pose_key(k) for k in range(self.builder.last_keyframe + 1)]
+            covs = marginal_covariances(graph, values, keys + [COMPASS_BIAS_KEY] if compass else keys, what)
+        if compass:
+            self.builder.diagnostics["compass_bias_rad"] = self.model.compass_bias(values)
+            if covs is not None:
+                self.builder.diagnostics["compass_bias_sigma_rad"] = float(math.sqrt(covs.pop()[2, 2]))  # yaw: Pose2 and Pose3 tangent index 2
         rows = _rows_from_values(self.model, self.builder, values, covs)
         if covs is not None and offset is not None and offset.sigma_m is not None:
             # the offset is estimated, not known: its variance reaches each position through the solve's sensitivity
@@ -601,12 +611,15 @@ LEARN_FIRST_S = 15.0
 BATCH_PASS_CHUNK_S = 5.0
 
 
-def _with_found_offset(profile, estimate: Estimate):
-    """``profile`` with the range offset a final solve found (in the corrected readings' metres) added to its own (reading units)."""
-    found = estimate.diagnostics.get("range_offset_m")
-    if not found:
+def _with_found_terms(profile, estimate: Estimate):
+    """``profile`` with what a final solve found on its corrected readings added: the range offset (found in the
+    corrected readings' metres, the profile's in reading units) and the compass bias."""
+    offset = estimate.diagnostics.get("range_offset_m") or 0.0
+    compass = estimate.diagnostics.get("compass_bias_rad") or 0.0
+    if not offset and not compass:
         return profile
-    return dataclasses.replace(profile, range_offset_m=profile.range_offset_m + found * profile.range_scale)
+    return dataclasses.replace(profile, range_offset_m=profile.range_offset_m + offset * profile.range_scale,
+                               compass_bias_rad=profile.compass_bias_rad + compass)
 
 
 def _merge(into: Increment, inc: Increment) -> None:

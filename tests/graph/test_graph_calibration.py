@@ -247,10 +247,15 @@ def test_range_offset_found_by_profile_likelihood(seed):
     forward, which only the turns tell apart. Measured: found offsets
     differ by 0.288-0.295 m for a 0.3 m difference; each within 0.5 sigma
     of its own (sigma 0.23-0.28 m, the 0.3 m range noise on ~60 readings).
+    The compass is taken as unbiased here (``compass_bias="off"``), as the
+    range scale is taken as 1: with its bias an unknown too, a turned track
+    explains part of what the offset does and the offset is found to half
+    the precision (seed 12: sigma 0.23 to 0.48 m; seed 13: no longer convex).
     """
     from eval.metrics import evaluate_estimate
 
-    config = GraphConfig(parameterisation="planar", range_offset="estimate", self_calibrate=False, range_scale="off", **SYNTHETIC_MODEL)
+    config = GraphConfig(parameterisation="planar", range_offset="estimate", self_calibrate=False, range_scale="off",
+                         compass_bias="off", **SYNTHETIC_MODEL)
     found = {}
     for c0 in (0.0, 0.3):
         drive = _offset_drive(c0, seed)
