@@ -132,14 +132,19 @@ class Estimator(ABC):
         return drive.with_layout(self.layout) if self.layout else drive
 
     def resolved_range_model(self, drive: Drive) -> Any:
-        """The given range model, else the profile's, else the drive's default."""
+        """The given range model, else the profile's, else the drive's default (for RSS, scaled by the profile's range scale)."""
         if self.range_model is not None:
             return self.range_model
         if self.profile is not None and self.profile.range_model() is not None and drive.reports_ranges:
             return self.profile.range_model()
         from graphpos.ranging import default_range_model
 
-        return default_range_model(drive)
+        model = default_range_model(drive)
+        if self.profile is not None and self.profile.range_scale != 1.0 and model.input_column == "rss":
+            from graphpos.ranging.model import ScaledRangeModel
+
+            return ScaledRangeModel(model, self.profile.range_scale)
+        return model
 
     def channels_used(self, drive: Drive) -> tuple[str, ...]:
         """Channels fed to ``process``, in tie-break order: the drive's channel order

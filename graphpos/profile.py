@@ -17,8 +17,9 @@ state vectors stay as printed:
   ``(reading - range_bearing2_m_per_rad2 * bearing^2 - range_offset_m) / range_scale``
   (the bearing term only where the reading has a ``bearing_rad``, as a
   camera's has), with 1-sigma ``range_sigma0_m + range_sigma_slope * distance``
-  (:meth:`SensorProfile.range_model`). RSS readings are left to their RSS
-  model (itself a calibration);
+  (:meth:`SensorProfile.range_model`). RSS readings keep their RSS model
+  (itself a calibration), its distances divided by ``range_scale``
+  (:meth:`graphpos.estimator.Estimator.resolved_range_model`);
 - compass yaw: ``reading - compass_bias_rad`` (a compass deviated by its
   installation).
 
@@ -68,7 +69,9 @@ class SensorProfile:
     wheel_scale : float
         The wheel speed.
     range_scale, range_offset_m : float
-        Reported ranges.
+        Reported ranges; the scale also applies to the distances of an RSS
+        radio's model (:class:`~graphpos.ranging.model.ScaledRangeModel`:
+        a reader hearing weaker than the calibration's reads long).
     range_bearing2_m_per_rad2 : float
         Reported ranges' error per squared bearing (m/rad^2), for readings
         with a bearing (a camera's range from a landmark's image, whose error

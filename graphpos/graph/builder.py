@@ -278,6 +278,11 @@ class GraphBuilder:
         return next(iter(self.range_models.values()), None)
 
     @property
+    def has_tag_ranges(self) -> bool:
+        """Whether the drive has tag readings (ranges or RSS) to range from."""
+        return bool(self.range_models)
+
+    @property
     def reports_ranges(self) -> bool:
         """Whether the tag readings are ranges (``range_m``), not signal strengths."""
         return getattr(self.range_model, "input_column", None) == "range_m"

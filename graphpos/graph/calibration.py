@@ -305,8 +305,9 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
       0.355 m with the default density);
     - compass: the bias the solve carried as an unknown, where it did
       (``compass_bias``, :meth:`GraphBuilder.graph`);
-    - ranges (reported ranges only): the range scale found by the profile
-      likelihood search (:func:`estimate_range_scale`) or 1, and the offset,
+    - ranges: the range scale found by the profile likelihood search
+      (:func:`estimate_range_scale`) or 1 (for RSS, the scale of the RSS
+      model's distances); for reported ranges also the offset,
       camera bearing term, sigma and correlation factor of
       :func:`fit_range_terms`.
 
@@ -343,6 +344,8 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
         turn_scale_density_per_sqrt_s=math.sqrt(turn_var),
     )
     fields.update(fit_range_terms(builder, values) or {})
+    if builder.has_tag_ranges and not builder.reports_ranges:
+        fields["range_scale"] = float(builder.range_scale)  # an RSS model's distances: the scale search's (no other range term)
     if builder.compass_bias_sigma_rad is not None and values.exists(COMPASS_BIAS_KEY):
         lo, hi = COMPASS_BIAS_BOUNDS_RAD
         fields["compass_bias_rad"] = float(np.clip(builder.model.compass_bias(values), lo, hi))

@@ -20,6 +20,7 @@ from graphpos.ranging import (
 )
 from graphpos.ranging.calibration_data import CALIBRATION_DISTANCES_M, simulate_collection
 from graphpos.ranging.drive_models import _calibrated
+from graphpos.ranging.model import ScaledRangeModel
 from graphpos.ranging.sigma import SigmaTable
 from graphpos.ranging.table1 import table1
 
@@ -28,11 +29,25 @@ def _fitted_models():
     rng = np.random.default_rng(7)
     d = rng.uniform(0.2, 9, 400)
     rss = 200 - 54 * np.log10(d) + 3 * rng.standard_normal(d.size)
+    lssvm = LssvmRangeModel(seed=1).fit(rss, d)
     return [
-        LssvmRangeModel(seed=1).fit(rss, d),
+        lssvm,
         PropagationRangeModel().fit(rss, d),
         LinearCalibration().fit(1.07 * d + 0.1 + 0.2 * rng.standard_normal(d.size), d),
+        ScaledRangeModel(lssvm, 1.2),
     ]
+
+
+def test_scaled_model_divides_the_inner_distance_and_sigma():
+    inner = _fitted_models()[1]
+    scaled = ScaledRangeModel(inner, 1.25)
+    rss = np.array([120.0, 160.0, 190.0, np.nan])
+    np.testing.assert_allclose(scaled.predict_distance_m(rss), inner.predict_distance_m(rss) / 1.25)
+    d = np.array([1.0, 4.0, 8.0])
+    np.testing.assert_allclose(scaled.predict_sigma_m(d), inner.predict_sigma_m(1.25 * d) / 1.25)
+    assert scaled.input_column == "rss"
+    with pytest.raises(ConfigError, match="positive"):
+        ScaledRangeModel(inner, 0.0)
 
 
 @pytest.mark.parametrize("model", _fitted_models(), ids=lambda m: m.kind)
