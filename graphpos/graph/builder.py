@@ -58,6 +58,7 @@ import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import L, R
 
+from filters.models.angles import wrap_angle
 from graphpos.drive import Channel, Drive, Measurement
 from graphpos.graph.config import GraphConfig
 from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState
@@ -420,7 +421,7 @@ class GraphBuilder:
         if ch not in ABSOLUTE_FIELDS or not all([self._finite(m, name) for name in ABSOLUTE_FIELDS[ch]]):
             return None
         if ch == "compass":
-            return ("compass", float(v["yaw_rad"]))
+            return ("compass", _wrap(float(v["yaw_rad"]) - self.corrections.compass_bias_rad))
         if ch == "rsu":
             if math.isfinite(v.get("range_m", math.nan)):
                 return ("range", ("rsu", int(v["rsu_id"])), float(v["range_m"]), float(v["sigma_m"]), None, math.nan)
@@ -722,6 +723,10 @@ class GraphBuilder:
                 b = r.bearing_rad if math.isfinite(r.bearing_rad) else 0.0
                 r.reading_m = max(r.reading_m - bearing2 * b * b - offset, 0.0)
 
+    def correct_compass_records(self, bias_rad: float) -> None:
+        """Correct the recorded compass readings as a learnt compass bias corrects those to come: ``reading - bias``."""
+        self.compass_records = [(k, _wrap(yaw - bias_rad)) for k, yaw in self.compass_records]
+
     def range_factor(self, record: RangeRecord, scale: float, offset: float = 0.0):
         """Rebuild a recorded range factor for another range scale and offset: ``(reading - offset) / scale``."""
         noise = robust(record.sigma_m / scale, self.config)
@@ -913,3 +918,8 @@ class GraphBuilder:
 def _count(counts: dict[str, int], key: str) -> None:
     """One more of ``key`` in a diagnostics count."""
     counts[key] = counts.get(key, 0) + 1
+
+
+def _wrap(angle_rad: float) -> float:
+    """An angle wrapped to [-pi, pi) (:func:`filters.models.angles.wrap_angle`), unchanged when already there."""
+    return angle_rad if -math.pi <= angle_rad < math.pi else wrap_angle(angle_rad)

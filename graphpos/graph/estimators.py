@@ -197,7 +197,9 @@ class GraphIsam2(_GraphEstimator):
     (:func:`~graphpos.graph.calibration.fit_range_terms`) corrects the
     recorded readings as well (:meth:`GraphBuilder.correct_range_records`),
     so the next learning fits what is left (MRCLAM6 mean RMS 0.526 to
-    0.431 m; robot 1 worse, 0.446 to 0.514 m). Only data received so far is
+    0.431 m; robot 1 worse, 0.446 to 0.514 m); so does the compass bias
+    (``compass_bias``, solved for in the learning solve and applied when
+    significant), correcting the recorded compass readings as well. Only data received so far is
     used: the output stays causal. The doubling keeps the learning's cost a
     small multiple of one batch solve of the drive. graph-fixed-lag does not
     learn (it keeps no history); without learning the two give the same
@@ -245,8 +247,19 @@ class GraphIsam2(_GraphEstimator):
         # fitted to a solve whose heading may depart from the turn rate (graph-batch's first solve loosens it the same way)
         c = self.config
         loose2 = (c.turn_scale_density_per_sqrt_s * c.calibration_odometry_factor) ** 2 - c.turn_scale_density_per_sqrt_s**2
-        values = optimise(b.graph(scale, extra_turn_density2=loose2), values, c, what, relative_tol=1e-3)
-        found = fit_profile(b, values, c, self._drive_name, since_keyframe=self._learnt_k)
+        if c.compass_bias == "estimate" and b.compass_records:  # the compass bias, solved for with the rest (as graph-batch does)
+            b.compass_bias_sigma_rad = c.compass_bias_sigma_rad
+            values = b.with_compass_frame(values)
+        try:
+            graph = b.graph(scale, extra_turn_density2=loose2)
+            values = optimise(graph, values, c, what, relative_tol=1e-3)
+            found = fit_profile(b, values, c, self._drive_name, since_keyframe=self._learnt_k)
+            if found is not None and found.compass_bias_rad:
+                sigma = math.sqrt(marginal_covariances(graph, values, [COMPASS_BIAS_KEY], what)[0][2, 2])
+                if abs(found.compass_bias_rad) < COMPASS_BIAS_SIGNIFICANCE * sigma:
+                    found = dataclasses.replace(found, compass_bias_rad=0.0)
+        finally:
+            b.compass_bias_sigma_rad = None  # the final smoothing's graph has the compass as corrected
         if found is None:
             return
         # a camera's bearing term (with its offset) corrects the readings to come and those recorded; other
@@ -257,6 +270,8 @@ class GraphIsam2(_GraphEstimator):
             range_bearing2_m_per_rad2=found.range_bearing2_m_per_rad2 if camera else 0.0))
         if camera:
             b.correct_range_records(found.range_offset_m, found.range_bearing2_m_per_rad2)
+        if found.compass_bias_rad:
+            b.correct_compass_records(found.compass_bias_rad)
         range_model = found.range_model() if reported and self.range_model is None else None
         b.recalibrate(corrections, scale, range_model)
         rebuilt = self._rebuild_ranges(values, what) if range_model is not None else 0
@@ -264,7 +279,7 @@ class GraphIsam2(_GraphEstimator):
         self._learning.append({"keyframe": k, "range_scale": scale, "gyro_bias_radps": corrections.gyro_bias_radps,
                                "yaw_rate_scale": corrections.yaw_rate_scale, "wheel_scale": corrections.wheel_scale,
                                "range_offset_m": corrections.range_offset_m, "range_bearing2_m_per_rad2": corrections.range_bearing2_m_per_rad2,
-                               "ranges_rebuilt": rebuilt})
+                               "compass_bias_rad": corrections.compass_bias_rad, "ranges_rebuilt": rebuilt})
 
     def _rebuild_ranges(self, values: gtsam.Values, what: str) -> int:
         """Swap every range factor in iSAM2's window for one with the learnt scale and sigma.
@@ -611,6 +626,9 @@ class GraphBatch(_GraphEstimator):
         self.builder.wheel_scale = min(max(self.builder.fit_wheel_scale(values), lo), hi)
         self.builder.diagnostics["wheel_scale"] = self.builder.wheel_scale
 
+
+#: graph-isam2 applies a learnt compass bias only beyond this many of its sigmas.
+COMPASS_BIAS_SIGNIFICANCE = 2.0
 
 #: graph-isam2's first online calibration: once its track (held keyframes included) spans this many s (then 2x, 4x ...).
 LEARN_FIRST_S = 15.0
