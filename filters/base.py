@@ -152,6 +152,8 @@ class FilterEstimator(Estimator):
         self._ignition = self._new_ignition(drive, self.start_pose(drive))
         self._started = self._ever_started = False
         self._own = set(super().channels_used(drive))
+        #: The odometry channels this filter reads (their clocks are followed, :meth:`_follow_odometry`).
+        self._own_odometry = frozenset(c for c in _ODOMETRY_CHANNELS if c in self._own)
         #: Last sample of each odometry channel seen (a filter that needs a start), and when its track was lost.
         self._last_odometry_s = {}
         self._oldest_odometry_s = math.inf
@@ -197,10 +199,12 @@ class FilterEstimator(Estimator):
         last = self._last_odometry_s
         # the oldest channel is silent if any is (t_s - t is monotone in t, also in floating point)
         oldest = self._oldest_odometry_s
-        silent_since = oldest if t_s - oldest > MAX_ODOMETRY_GAP_S else None
-        if kind in _ODOMETRY_CHANNELS and kind in self._own:
+        if kind in self._own_odometry:
             last[kind] = t_s
             self._oldest_odometry_s = min(last.values())
+        if t_s - oldest <= MAX_ODOMETRY_GAP_S and self._lost_s is None:
+            return True  # every odometry channel fresh and the track held: the common case, once per sample
+        silent_since = oldest if t_s - oldest > MAX_ODOMETRY_GAP_S else None
         if silent_since is not None and self._lost_s is None:
             if self._pending:
                 self._flush_scan()
@@ -344,8 +348,9 @@ class FilterEstimator(Estimator):
                     self._rows.append(row)
                 self._n_out += 1
                 self._next_out = self._t_grid0 + self._n_out * self._period
-        self._predict_to(t)
-        self._t = t
+        if t > self._t:  # a reading at the filter's time (wheel after IMU) needs no prediction
+            self._predict_to(t)
+            self._t = t
         return t
 
     # -- RFID scans -------------------------------------------------------------
