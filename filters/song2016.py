@@ -279,6 +279,7 @@ class _InputHold:
         self.u = (0.0, 0.0, 0.0)
         self.has_accel = True
         self._q_cache: dict[tuple[float, bool], np.ndarray] = {}
+        self._q_last_dt, self._q_last_accel, self._q_last = math.nan, True, None
 
     def set(self, accel_x: float, accel_y: float, yaw_rate: float) -> None:
         self.has_accel = accel_x == accel_x and accel_y == accel_y  # not NaN
@@ -288,6 +289,13 @@ class _InputHold:
         return _accel_psd(self.cfg, self.has_accel)
 
     def Q(self, dt: float) -> np.ndarray:
+        if dt == self._q_last_dt and self.has_accel == self._q_last_accel:
+            return self._q_last  # the IMU's steady step: the same key as the last call
+        self._q_last = Q = self._cached_Q(dt)
+        self._q_last_dt, self._q_last_accel = dt, self.has_accel
+        return Q
+
+    def _cached_Q(self, dt: float) -> np.ndarray:
         key = (round(dt, 12), self.has_accel)
         Q = self._q_cache.get(key)
         if Q is None:
@@ -296,15 +304,11 @@ class _InputHold:
                 self._q_cache[key] = Q
         return Q
 
-    def propagate(self, x: np.ndarray, dt: float, jacobian: bool):
-        """``(x_next, F)`` with the held input (see :func:`_propagate`)."""
-        return _propagate(x, dt, self.u, self.has_accel, jacobian)
-
 
 def _propagate(x: np.ndarray, dt: float, u: np.ndarray, has_accel: bool, jacobian: bool):
     """``(x_next, F)``: eq. 16, or the fallback without accelerometers."""
     if has_accel:
-        out, jac = vehicle.improved_motion(x, u, dt, jacobian)
+        out, jac = vehicle.improved_motion(x, u, dt, jacobian, input_jacobian=False)
         return out, (jac[0] if jac is not None else None)
     return vehicle.rotating_velocity_motion(x, float(u[2]), dt, jacobian)
 
@@ -408,7 +412,8 @@ class _VehicleEkf(FilterEstimator):
         dt = t_s - self._t
         if dt <= 0.0:
             return
-        x, F = self._hold.propagate(self._x, dt, True)
+        hold = self._hold
+        x, F = _propagate(self._x, dt, hold.u, hold.has_accel, True)
         x[4] = wrap_angle(float(x[4]))
         self._x, self._P = ekf.predict(x, F, self._P, self._hold.Q(dt))
 

@@ -71,19 +71,20 @@ def update(
     moved ``dr`` to a 30 m RMS error from 2 m.)
     """
     nu = residual(z, z_pred) if residual is not None else z - z_pred
-    nu = np.atleast_1d(nu)
-    r_ndim = np.ndim(R)
+    if not isinstance(nu, np.ndarray) or nu.ndim == 0:
+        nu = np.atleast_1d(nu)
+    r_ndim = R.ndim if isinstance(R, np.ndarray) else np.ndim(R)
     if r_ndim == 1 or nu.shape[0] == 1:
-        r = (np.diag(R) if r_ndim == 2 else np.ravel(R)).tolist()
+        r = np.diag(R).tolist() if r_ndim == 2 else np.asarray(R, dtype=np.float64).ravel().tolist()
         nu_l = nu.tolist()
         x_new, P_new, nis = x, P, 0.0
         for i, h in enumerate(H):
             PHt = P_new.dot(h)
             s = float(h.dot(PHt)) + r[i]
             k = PHt / s
-            nu_i = nu_l[i] if i == 0 else float(nu[i] - h.dot(x_new - x))
+            nu_i = nu_l[i] if i == 0 else nu_l[i] - float(h.dot(x_new - x))
             x_new = x_new + k * nu_i
-            P_new = P_new - np.multiply.outer(k, PHt)
+            P_new = P_new - k[:, None] * PHt  # the outer product k PHt^T
             nis += nu_i * nu_i / s
         return Update(x_new, P_new, nis)
     PHt = P @ H.T

@@ -32,7 +32,7 @@ def _identity(n: int) -> np.ndarray:
     return eye.copy()
 
 
-def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = True):
+def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = True, input_jacobian: bool = True):
     """song2016 eq. 16, the improved vehicle motion model, in state order.
 
     Parameters
@@ -44,6 +44,11 @@ def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = 
         (rad/s), held constant over the step.
     dt_s : float
         Step T.
+    jacobian : bool
+        Return the Jacobians (a single state only).
+    input_jacobian : bool
+        With ``jacobian``: also ``G`` (False: ``G`` is None; an EKF driven
+        by the measured input needs ``F`` alone).
 
     Returns
     -------
@@ -94,6 +99,8 @@ def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = 
     F[PN, YAW] = half_t2 * a_e
     F[VE, YAW] = -dt_s * a_n
     F[VN, YAW] = dt_s * a_e
+    if not input_jacobian:
+        return out, (F, None)
     G = np.zeros((x.shape[0], 3))
     G[PE, 0], G[PE, 1] = half_t2 * c, -half_t2 * s
     G[PN, 0], G[PN, 1] = half_t2 * s, half_t2 * c
