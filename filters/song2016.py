@@ -339,37 +339,39 @@ def _propagate_steps(x: np.ndarray, dt_s: np.ndarray, u: np.ndarray, has_accel: 
         ``[:, j]`` is the state after ``j`` steps (yaw not wrapped).
     """
     k, K = x.shape[0], dt_s.size
-    out = np.empty((k, K + 1, 5))
-    out[:, 0] = x
+    # filled as (state, entry, step), so that the sums over the steps run along contiguous memory
+    out = np.empty((k, 5, K + 1))
+    traj = out.transpose(0, 2, 1)
+    out[:, :, 0] = x
     if K == 0:
-        return out
+        return traj
     all_accel = bool(has_accel.all())
     if not all_accel and has_accel.any():
         for j in range(K):
-            out[:, j + 1] = _propagate(out[:, j], float(dt_s[j]), u[j], bool(has_accel[j]), False)[0]
-        return out
+            traj[:, j + 1] = _propagate(traj[:, j], float(dt_s[j]), u[j], bool(has_accel[j]), False)[0]
+        return traj
     theta = np.zeros(K + 1)
     np.cumsum(u[:, 2] * dt_s, out=theta[1:])
-    out[:, :, YAW] = x[:, YAW, None] + theta
-    pos, vel, step = out[:, :, PE : PN + 1], out[:, :, VE : VN + 1], dt_s[:, None]
+    out[:, YAW] = x[:, YAW, None] + theta
+    pos, vel, step = out[:, PE : PN + 1], out[:, VE : VN + 1], dt_s
     if all_accel:
-        yaw = out[:, :-1, YAW]
+        yaw = out[:, YAW, :-1]
         c, s = np.cos(yaw), np.sin(yaw)
-        a_en = np.empty((k, K, 2))  # body accelerations turned to east-north
-        a_en[..., 0] = u[:, 0] * c - u[:, 1] * s
-        a_en[..., 1] = u[:, 0] * s + u[:, 1] * c
-        np.cumsum(a_en * step, axis=1, out=vel[:, 1:])
-        vel[:, 1:] += x[:, None, VE : VN + 1]
-        dp = vel[:, :-1] * step + (0.5 * step * step) * a_en
+        a_en = np.empty((k, 2, K))  # body accelerations turned to east-north
+        a_en[:, 0] = u[:, 0] * c - u[:, 1] * s
+        a_en[:, 1] = u[:, 0] * s + u[:, 1] * c
+        np.cumsum(a_en * step, axis=2, out=vel[:, :, 1:])
+        vel[:, :, 1:] += x[:, VE : VN + 1, None]
+        dp = vel[:, :, :-1] * step + (0.5 * step * step) * a_en
     else:
         c, s = np.cos(theta), np.sin(theta)
         ve0, vn0 = x[:, VE, None], x[:, VN, None]
-        vel[..., 0] = c * ve0 - s * vn0
-        vel[..., 1] = s * ve0 + c * vn0
-        dp = vel[:, :-1] * step
-    np.cumsum(dp, axis=1, out=pos[:, 1:])
-    pos[:, 1:] += x[:, None, PE : PN + 1]
-    return out
+        vel[:, 0] = c * ve0 - s * vn0
+        vel[:, 1] = s * ve0 + c * vn0
+        dp = vel[:, :, :-1] * step
+    np.cumsum(dp, axis=2, out=pos[:, :, 1:])
+    pos[:, :, 1:] += x[:, PE : PN + 1, None]
+    return traj
 
 
 def _wheel_variances(cfg: VehicleFilterConfig) -> np.ndarray:
@@ -726,6 +728,7 @@ class Fukf(FilterEstimator):
         self._set_beta(cfg.beta_few_tags)
         self._reset()
         self._R_wheel = _wheel_variances(cfg)
+        self._R_wheel_stacked: dict[int, np.ndarray] = {}
         self._var_compass = cfg.compass_sigma_rad**2
         self.diagnostics.setdefault("fusions", 0)  # kept over a restart after an odometry gap
 
@@ -776,7 +779,7 @@ class Fukf(FilterEstimator):
         wheel_at, wheel_mps, compass_at, compass_rad = iv.wheel_at, iv.wheel_mps, iv.compass_at, iv.compass_rad
         f1, f2 = self._local
         n_pts = 2 * 5 + 1
-        sig = np.concatenate([self._points.sigma_points(f1.x, f1.P), self._points.sigma_points(f2.x, f2.P)])
+        sig = self._points.sigma_points(np.array([f1.x, f2.x]), np.array([f1.P, f2.P])).reshape(2 * n_pts, 5)
         traj = _propagate_steps(sig, dt_s, u, has_accel)
         Q = _process_noise(self.config, float(dt_s.sum()), _accel_psd(self.config, bool(has_accel.all())))
         f1.predict_points(traj[:n_pts, -1], Q / self._beta[0])
@@ -789,9 +792,11 @@ class Fukf(FilterEstimator):
                 z.append(np.array(wheel_mps))
                 Z.append(meas.wheel_speed(traj[n_pts:, wheel_at], False)[0])
             else:  # rows [speed, sideways] per reading
-                z.append(np.array([(v, 0.0) for v in wheel_mps]).ravel())
+                z_wheel = np.zeros(2 * len(wheel_at))
+                z_wheel[::2] = wheel_mps
+                z.append(z_wheel)
                 Z.append(meas.body_velocity(traj[n_pts:, wheel_at], False)[0].reshape(n_pts, -1))
-            R.append(np.tile(self._R_wheel, len(wheel_at)))
+            R.append(self._wheel_variances(len(wheel_at)))
         n_wheel = sum(r.size for r in z)
         if compass_at:
             z.append(np.array(compass_rad))
@@ -801,6 +806,13 @@ class Fukf(FilterEstimator):
             np.concatenate(z), np.concatenate(Z, axis=1), dx, np.concatenate(R),
             angle_measurements=range(n_wheel, n_wheel + len(compass_at)),
         )
+
+    def _wheel_variances(self, readings: int) -> np.ndarray:
+        """The diagonal R of ``readings`` wheel readings stacked (one array per count, built once)."""
+        R = self._R_wheel_stacked.get(readings)
+        if R is None:
+            R = self._R_wheel_stacked[readings] = np.tile(self._R_wheel, readings)
+        return R
 
     def _on_scan(self, t_s, tags, ranges, sigmas):
         cfg = self.config

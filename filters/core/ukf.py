@@ -53,7 +53,8 @@ class MerweScaledSigmaPoints:
         self.Wc[0] = lam / self.scale + 1.0 - alpha * alpha + beta
 
     def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """(2n+1, n) sigma points of ``N(x, P)``.
+        """(2n+1, n) sigma points of ``N(x, P)``; for a stack of ``k`` estimates
+        (``x`` (k, n), ``P`` (k, n, n)), (k, 2n+1, n), each as if drawn alone.
 
         A ``P`` that has lost positive definiteness is first projected onto
         the nearest positive-definite matrix (:func:`nearest_positive_definite`).
@@ -64,15 +65,27 @@ class MerweScaledSigmaPoints:
         with a traceback (MRCLAM6 robot 3 from a start pose with a 30 deg
         yaw sigma).
         """
+        x, P = np.asarray(x), np.asarray(P)
         try:
             L = np.linalg.cholesky(self.scale * P)
         except np.linalg.LinAlgError:
-            L = np.linalg.cholesky(self.scale * nearest_positive_definite(P))
-        out = np.empty((2 * self.n + 1, self.n))
-        out[0] = x
-        out[1 : self.n + 1] = x + L.T
-        out[self.n + 1 :] = x - L.T
+            L = self._cholesky_projected(P)
+        Lt = np.swapaxes(L, -1, -2)
+        out = np.empty(x.shape[:-1] + (2 * self.n + 1, self.n))
+        xs = x[..., None, :]
+        out[..., 0, :] = x
+        out[..., 1 : self.n + 1, :] = xs + Lt
+        out[..., self.n + 1 :, :] = xs - Lt
         return out
+
+    def _cholesky_projected(self, P: np.ndarray) -> np.ndarray:
+        """Cholesky factors of ``scale * P``, each ``P`` that is not positive definite projected first."""
+        if P.ndim > 2:
+            return np.stack([self._cholesky_projected(p) for p in P])
+        try:
+            return np.linalg.cholesky(self.scale * P)
+        except np.linalg.LinAlgError:
+            return np.linalg.cholesky(self.scale * nearest_positive_definite(P))
 
 
 def nearest_positive_definite(P: np.ndarray, floor: float = 1e-12) -> np.ndarray:
