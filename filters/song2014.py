@@ -289,7 +289,7 @@ class Song2014Fusion(FilterEstimator):
             z.append(float(epoch.yaw))
             R[3, 3] = cfg.compass_sigma_rad**2
         idx = np.array(rows, dtype=np.int64)
-        return idx, np.array(z), R[np.ix_(idx, idx)]
+        return idx, np.array(z), R[idx[:, None], idx]
 
     def _combined(self) -> tuple[np.ndarray, np.ndarray]:
         if len(self._states) == 1:

@@ -98,8 +98,8 @@ class FadingMemory:
         self.seen[rows] = True
         tr_n = np.trace(S - HQH, axis1=1, axis2=2) - config.softening_factor * np.trace(R)
         tr_m = np.einsum("kij,kjl,kil->k", HA, P, HA)  # tr(H A P A^T H^T)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            lam = np.where(tr_m > 0, tr_n / tr_m, 1.0)
+        positive = tr_m > 0
+        lam = np.where(positive, tr_n / np.where(positive, tr_m, 1.0), 1.0)
         return np.maximum(lam, 1.0)
 
 

@@ -23,7 +23,7 @@ from __future__ import annotations
 import numpy as np
 
 from filters.models.measurements import compass_yaw, position_fix, wheel_speed
-from filters.models.vehicle import PE, PN, VE, VN, improved_motion
+from filters.models.vehicle import PE, PN, VE, VN, _identity, improved_motion
 from filters.models.vehicle import YAW as PSI
 
 #: Index of the yaw rate in the song2014 6-state (the first five entries are
@@ -139,7 +139,7 @@ def ct_transition(x: np.ndarray, u: np.ndarray, dt_s: float) -> tuple[np.ndarray
             w,
         ]
     )
-    A = np.eye(6)
+    A = _identity(6)
     A[PE, VE], A[PE, VN] = S, -C
     A[PN, VE], A[PN, VN] = C, S
     A[VE, VE], A[VE, VN] = cw, -sw
@@ -186,7 +186,7 @@ def position_speed_yaw_observation(x: np.ndarray, rows: np.ndarray | None = None
     v, Hv = wheel_speed(x)
     psi, Hpsi = compass_yaw(x)
     z = np.array([p[0], p[1], v, psi])
-    H = np.vstack([Hp, Hv, Hpsi])
+    H = np.concatenate((Hp, Hv, Hpsi))
     if rows is None:
         return z, H
     return z[rows], H[rows]
