@@ -43,6 +43,7 @@ no fix (§5.2: "the reader can't detect enough tags").
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -129,6 +130,8 @@ def line_fit_weights(taps: int) -> np.ndarray:
 # Largest Gauss-Newton step (m): keeps a near-collinear scan from throwing
 # the solution far away.
 _MAX_STEP_M = 5.0
+# Ridge added to the LS information matrix (keeps it invertible when every tag is in one direction).
+_RIDGE_M2 = 1e-9
 
 
 @dataclass
@@ -303,19 +306,25 @@ class LmsFederatedPositioner:
         """Weighted Gauss-Newton least squares on ranges; returns the position
         and the information matrix ``J^T W J`` at it."""
         x = np.asarray(x0, dtype=np.float64).copy()
-        info = np.eye(2) * 1e-9
+        info = np.eye(2) * _RIDGE_M2
+        w = weights[:, None]
         for _ in range(self.config.gauss_newton_iterations):
             d = x - tags
             r = np.maximum(np.hypot(d[:, 0], d[:, 1]), 1e-6)
             J = d / r[:, None]
-            Jw = J * weights[:, None]
-            info = Jw.T @ J + np.eye(2) * 1e-9
-            step = np.linalg.solve(info, Jw.T @ (ranges - r))
-            norm = float(np.hypot(*step))
+            Jw = J * w
+            info = Jw.T.dot(J)
+            info.flat[::3] += _RIDGE_M2
+            # the 2x2 normal equations solved in closed form
+            (a, b), (c, e) = info.tolist()
+            g0, g1 = Jw.T.dot(ranges - r).tolist()
+            det = a * e - b * c
+            step = np.array([(e * g0 - b * g1) / det, (a * g1 - c * g0) / det])
+            norm = math.hypot(step[0], step[1])
             if norm > _MAX_STEP_M:  # a poorly conditioned scan: move cautiously
                 step *= _MAX_STEP_M / norm
             x += step
-            if step @ step < 1e-8:
+            if step.dot(step) < 1e-8:
                 break
         return x, info
 
