@@ -159,7 +159,7 @@ class Song2014Fusion(FilterEstimator):
         self._positioner = LmsFederatedPositioner(cfg.lms)
         self._epoch = _Epoch()
         self._fix: Fix | None = None
-        self._last_input = np.zeros(3)
+        self._last_input = (0.0, 0.0, 0.0)  # [a_x, a_y, w_z] of the last epoch with IMU samples
         x = np.array([start.east_m, start.north_m, start.v_east_mps, start.v_north_mps, wrap_angle(start.yaw_rad), 0.0])
         sp, sv = start.position_sigma_m, start.speed_sigma_mps
         P = np.diag(np.square([sp, sp, sv, sv, start.yaw_sigma_rad, cfg.init_yaw_rate_sigma_radps]))
@@ -199,8 +199,11 @@ class Song2014Fusion(FilterEstimator):
         epoch, self._epoch = self._epoch, _Epoch()
         if epoch.imu_n:
             # an epoch without accelerometer samples holds the last accelerations
-            accel = np.array([epoch.ax, epoch.ay]) / epoch.accel_n if epoch.accel_n else self._last_input[:2]
-            self._last_input = np.array([accel[0], accel[1], epoch.wz / epoch.imu_n])
+            if epoch.accel_n:
+                accel = (epoch.ax / epoch.accel_n, epoch.ay / epoch.accel_n)
+            else:
+                accel = self._last_input[:2]
+            self._last_input = (*accel, epoch.wz / epoch.imu_n)
         if t_s > self._t_state:
             self._step(t_s, epoch)
         x, P = self._combined()
@@ -236,13 +239,11 @@ class Song2014Fusion(FilterEstimator):
         A = np.array([p[1] for p in preds])
         Q = np.array([p[2] for p in preds])
         if rows.size:
-            obs = [km.position_speed_yaw_observation(x, rows) for x in x_pred]
-            z_pred = np.array([o[0] for o in obs])
-            H = np.array([o[1] for o in obs])
-            s = stekf.step(x_pred, A, covs, Q, z, z_pred, H, R, rows, self._memory, cfg.fading,
-                           np.flatnonzero(rows == km.OBS_YAW))
+            z_pred, H = km.position_speed_yaw_observation(x_pred, rows)
+            yaw_rows = (rows.size - 1,) if rows[-1] == km.OBS_YAW else ()  # the compass row comes last
+            s = stekf.step(x_pred, A, covs, Q, z, z_pred, H, R, rows, self._memory, cfg.fading, yaw_rows)
             new_states, new_covs = s.x, s.P
-            log_likelihoods = imm.log_likelihood(s.innovation, s.innovation_cov)
+            log_likelihoods = imm.log_likelihood(s.innovation, s.innovation_cov, s.whitened_innovation)
             self._fading_log.extend(s.fading.tolist())
         else:
             new_states, new_covs = x_pred, A @ covs @ np.swapaxes(A, 1, 2) + Q
@@ -256,12 +257,13 @@ class Song2014Fusion(FilterEstimator):
         """``f(x, u)``, ``A`` and the noise ``B Gamma B^T + Q`` of one model."""
         cfg = self.config
         u = self._last_input
-        x_ca, A_ca, B_ca = km.ca_transition(x, u[:2], T)
         if name == "ca":
+            x_ca, A_ca, B_ca = km.ca_transition(x, u[:2], T)
             var_a = cfg.accel_sigma_mps2**2 + cfg.ca_accel_noise_mps2**2
             Q = var_a * (B_ca @ B_ca.T)
             Q[km.OMEGA, km.OMEGA] += cfg.ca_yaw_accel_noise_radps2**2 * T
             return x_ca, A_ca, Q
+        B_ca = km.ca_input_jacobian(x, T)
         x_ct, A_ct, B_ct = km.ct_transition(x, u[2:], T)
         Q = cfg.ct_accel_noise_mps2**2 * (B_ca @ B_ca.T) + cfg.gyro_sigma_radps**2 * (B_ct @ B_ct.T)
         return x_ct, A_ct, Q
@@ -270,7 +272,8 @@ class Song2014Fusion(FilterEstimator):
         cfg = self.config
         rows: list[int] = []
         z: list[float] = []
-        R = np.zeros((4, 4))
+        variances: list[float] = []  # of the rows after the fix's
+        R_fix = None
         if self._fix is not None:
             fix, self._fix = self._fix, None
             x, _ = self._combined()
@@ -278,18 +281,23 @@ class Song2014Fusion(FilterEstimator):
             rows += [km.OBS_POSITION_E, km.OBS_POSITION_N]
             z += [fix.east_m + x[km.VE] * lag, fix.north_m + x[km.VN] * lag]
             w, V = np.linalg.eigh(fix.cov_en_m2)
-            R[:2, :2] = (V * np.maximum(w, cfg.rfid_sigma_floor_m**2)) @ V.T
+            R_fix = (V * np.maximum(w, cfg.rfid_sigma_floor_m**2)) @ V.T
             self.diagnostics["fixes_used"] += 1
         if epoch.wheel_n:
             rows.append(km.OBS_SPEED)
             z.append(epoch.wheel_sum / epoch.wheel_n)
-            R[2, 2] = cfg.wheel_sigma_mps**2
+            variances.append(cfg.wheel_sigma_mps**2)
         if epoch.yaw is not None:
             rows.append(km.OBS_YAW)
             z.append(float(epoch.yaw))
-            R[3, 3] = cfg.compass_sigma_rad**2
-        idx = np.array(rows, dtype=np.int64)
-        return idx, np.array(z), R[idx[:, None], idx]
+            variances.append(cfg.compass_sigma_rad**2)
+        R = np.zeros((len(rows), len(rows)))
+        first = 0 if R_fix is None else 2
+        if R_fix is not None:
+            R[:2, :2] = R_fix
+        for j, var in enumerate(variances, start=first):
+            R[j, j] = var
+        return np.array(rows, dtype=np.int64), np.array(z), R
 
     def _combined(self) -> tuple[np.ndarray, np.ndarray]:
         if len(self._states) == 1:

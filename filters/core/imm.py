@@ -7,6 +7,7 @@ mixed on the circle (their differences are wrapped).
 
 from __future__ import annotations
 
+import math
 from typing import Sequence
 
 import numpy as np
@@ -67,21 +68,30 @@ def mix(
     return x0, P0, predicted
 
 
-def log_likelihood(innovation: np.ndarray, innovation_cov: np.ndarray) -> np.ndarray:
+def log_likelihood(innovation: np.ndarray, innovation_cov: np.ndarray, whitened: np.ndarray | None = None) -> np.ndarray:
     """Gaussian log-likelihoods of stacked innovations (k, r) with covariances
-    (k, r, r), song2014 eq. (40)."""
+    (k, r, r), song2014 eq. (40).
+
+    ``whitened`` is ``S^-1 g`` (k, r) when the caller has it already (the
+    STEKF step solves for it with its gain, :class:`filters.core.stekf.Step`).
+    """
     if innovation.shape[-1] == 0:
         return np.zeros(innovation.shape[0])
     _, logdet = np.linalg.slogdet(2.0 * np.pi * innovation_cov)
-    maha = np.einsum("ki,ki->k", innovation, np.linalg.solve(innovation_cov, innovation[..., None])[..., 0])
+    if whitened is None:
+        whitened = np.linalg.solve(innovation_cov, innovation[..., None])[..., 0]
+    maha = np.einsum("ki,ki->k", innovation, whitened)
     return -0.5 * maha - 0.5 * logdet
 
 
 def update_probabilities(predicted: np.ndarray, log_likelihoods: np.ndarray) -> np.ndarray:
     """Model probability update, song2014 eq. (41) (in logs, to avoid underflow)."""
-    w = np.log(predicted) + np.asarray(log_likelihoods, dtype=np.float64)
-    w = np.exp(w - np.max(w))
-    return w / w.sum()
+    # a few models: plain floats cost less than numpy calls
+    w = [math.log(p) + ll for p, ll in zip(np.asarray(predicted).tolist(), np.asarray(log_likelihoods, dtype=np.float64).tolist())]
+    w_max = max(w)
+    e = [math.exp(v - w_max) for v in w]
+    total = sum(e)
+    return np.array([v / total for v in e])
 
 
 def combine(

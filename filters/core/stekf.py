@@ -65,15 +65,17 @@ class FadingConfig:
 class FadingMemory:
     """The innovation second-moment estimates ``S(k)`` of ``k`` filters.
 
-    Kept over the full observation vector, one ``(m, m)`` block per filter;
-    an epoch that observes only some rows updates only their block (rows
-    seen for the first time start at ``g g^T``, the ``k = 0`` case).
+    Kept over the full observation vector; an epoch that observes only some
+    rows updates only their block (rows seen for the first time start at
+    ``g g^T``, the ``k = 0`` case). Only the diagonals are stored
+    (``S_diag``, (k, m)): ``lambda`` reads ``S`` through ``tr N`` alone, and
+    each diagonal entry follows the recursion by itself,
+    ``S_ii(k) = (rho S_ii(k-1) + g_i^2) / (1 + rho)``.
     """
 
     def __init__(self, obs_size: int, filters: int = 1):
-        self.S = np.zeros((filters, obs_size, obs_size))
+        self.S_diag = np.zeros((filters, obs_size))
         self.seen = np.zeros(obs_size, dtype=bool)
-        self._blocks: dict[bytes, tuple] = {}
 
     def factor(
         self,
@@ -87,20 +89,15 @@ class FadingMemory:
     ) -> np.ndarray:
         """Update ``S`` with the innovations ``g`` (k, r) of ``rows`` and
         return ``lambda`` (k,); ``HA = H A`` (k, r, n), ``HQH = H Q H^T``."""
-        key = rows.tobytes()
-        block = self._blocks.get(key)
-        if block is None:
-            block = self._blocks[key] = np.ix_(np.arange(self.S.shape[0]), rows, rows)
-        ggT = g[:, :, None] * g[:, None, :]
+        g2 = g * g  # the diagonal of g g^T
         rho = config.forgetting_factor
-        S = (rho * self.S[block] + ggT) / (1.0 + rho) if self.seen[rows].all() else ggT
-        self.S[block] = S
+        S = (rho * self.S_diag[:, rows] + g2) / (1.0 + rho) if self.seen[rows].all() else g2
+        self.S_diag[:, rows] = S
         self.seen[rows] = True
-        tr_n = np.trace(S - HQH, axis1=1, axis2=2) - config.softening_factor * np.trace(R)
+        tr_n = (S - HQH.diagonal(axis1=1, axis2=2)).sum(axis=1) - config.softening_factor * R.trace()
         tr_m = np.einsum("kij,kjl,kil->k", HA, P, HA)  # tr(H A P A^T H^T)
-        positive = tr_m > 0
-        lam = np.where(positive, tr_n / np.where(positive, tr_m, 1.0), 1.0)
-        return np.maximum(lam, 1.0)
+        # lambda = max(1, tr N / tr M), 1 where tr M is not positive (a few filters: plain floats)
+        return np.array([max(n / m, 1.0) if m > 0 else 1.0 for n, m in zip(tr_n.tolist(), tr_m.tolist())])
 
 
 class Step(NamedTuple):
@@ -113,6 +110,9 @@ class Step(NamedTuple):
     innovation: np.ndarray
     innovation_cov: np.ndarray
     fading: np.ndarray
+    #: ``S^-1 g`` of each filter (from the same solve as the gain; the IMM
+    #: likelihood's Mahalanobis term is ``g^T S^-1 g``).
+    whitened_innovation: np.ndarray
 
 
 def step(
@@ -156,19 +156,22 @@ def step(
     g = z[None, :] - z_pred
     for i in () if angle_rows is None else angle_rows:
         g[:, i] = wrap_angle(g[:, i])
-    At = np.swapaxes(A, 1, 2)
-    APA = A @ P @ At
+    APA = A @ P @ A.transpose(0, 2, 1)
+    Ht = H.transpose(0, 2, 1)
     if config.enabled:
         HA = H @ A
-        HQH = H @ Q @ np.swapaxes(H, 1, 2)
+        HQH = H @ Q @ Ht
         lam = memory.factor(rows, g, HA, P, HQH, R, config)
     else:
         lam = np.ones(x_pred.shape[0])
     P_pred = lam[:, None, None] * APA + Q
-    Ht = np.swapaxes(H, 1, 2)
     PHt = P_pred @ Ht
+    HPt = PHt.transpose(0, 2, 1)
     S = H @ PHt + R
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(PHt, 1, 2)), 1, 2)  # P H^T S^-1 (S symmetric)
-    x = x_pred + np.einsum("kij,kj->ki", K, g)
-    P_new = P_pred - K @ S @ np.swapaxes(K, 1, 2)
-    return Step(x, 0.5 * (P_new + np.swapaxes(P_new, 1, 2)), g, S, lam)
+    # one solve for the gain K = P H^T S^-1 (S symmetric) and S^-1 g
+    solved = np.linalg.solve(S, np.concatenate((HPt, g[:, :, None]), axis=2))
+    K = solved[:, :, :-1].transpose(0, 2, 1)
+    whitened = solved[:, :, -1]
+    x = x_pred + (PHt @ solved[:, :, -1:])[:, :, 0]  # K g
+    P_new = P_pred - K @ HPt  # K S K^T = K (P H^T)^T
+    return Step(x, 0.5 * (P_new + P_new.transpose(0, 2, 1)), g, S, lam, whitened)

@@ -20,10 +20,12 @@ wheel speed ``v = v_e cos psi + v_n sin psi``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from filters.models.measurements import compass_yaw, position_fix, wheel_speed
-from filters.models.vehicle import PE, PN, VE, VN, _identity, improved_motion
+from filters.models.vehicle import PE, PN, VE, VN, _identity, improved_motion, improved_motion_input_jacobian
 from filters.models.vehicle import YAW as PSI
 
 #: Index of the yaw rate in the song2014 6-state (the first five entries are
@@ -73,6 +75,15 @@ def ca_transition(x: np.ndarray, u: np.ndarray, dt_s: float) -> tuple[np.ndarray
     return x_next, A, G[:, :2]
 
 
+def ca_input_jacobian(x: np.ndarray, dt_s: float) -> np.ndarray:
+    """``B`` (6, 2) of :func:`ca_transition` alone: it depends on the yaw and ``T`` only.
+
+    The CT model's process noise includes the accelerations' through it
+    (song2014 ``B Gamma B^T``).
+    """
+    return improved_motion_input_jacobian(x, dt_s)[:, :2]
+
+
 # ---------------------------------------------------------------------------
 # song2014 §4.1: constant turn (CT)
 # ---------------------------------------------------------------------------
@@ -91,7 +102,7 @@ def _turn_coefficients(w: float, T: float) -> tuple[float, float, float, float]:
         dS = -w * T**3 / 3.0
         dC = T * T / 2.0 - w * w * T**4 / 8.0
     else:
-        sn, cs = np.sin(wt), np.cos(wt)
+        sn, cs = math.sin(wt), math.cos(wt)
         S = sn / w
         C = (1.0 - cs) / w
         dS = (wt * cs - sn) / (w * w)
@@ -127,15 +138,15 @@ def ct_transition(x: np.ndarray, u: np.ndarray, dt_s: float) -> tuple[np.ndarray
     T = dt_s
     w = float(u[0])
     S, C, dS, dC = _turn_coefficients(w, T)
-    cw, sw = np.cos(w * T), np.sin(w * T)
-    ve, vn = x[VE], x[VN]
+    cw, sw = math.cos(w * T), math.sin(w * T)
+    pe, pn, ve, vn, psi = np.asarray(x, dtype=np.float64)[:5].tolist()
     x_next = np.array(
         [
-            x[PE] + S * ve - C * vn,
-            x[PN] + C * ve + S * vn,
+            pe + S * ve - C * vn,
+            pn + C * ve + S * vn,
             cw * ve - sw * vn,
             sw * ve + cw * vn,
-            x[PSI] + w * T,
+            psi + w * T,
             w,
         ]
     )
@@ -172,24 +183,27 @@ def position_speed_yaw_observation(x: np.ndarray, rows: np.ndarray | None = None
 
     Parameters
     ----------
-    x : (6,) song2014 state
+    x : (6,) song2014 state, or (k, 6) for the states of ``k`` filters
     rows : index array, optional
         Observation rows present at this epoch (e.g. ``[2, 3]`` when no RFID
         fix arrived); all four when None.
 
     Returns
     -------
-    z_pred : (len(rows),)
-    H : (len(rows), 6) Jacobian
+    z_pred : (len(rows),) or (k, len(rows))
+    H : (len(rows), 6) or (k, len(rows), 6) Jacobian
     """
     p, Hp = position_fix(x)
     v, Hv = wheel_speed(x)
     psi, Hpsi = compass_yaw(x)
-    z = np.array([p[0], p[1], v, psi])
-    H = np.concatenate((Hp, Hv, Hpsi))
+    z = np.empty(p.shape[:-1] + (4,))
+    z[..., :2] = p
+    z[..., OBS_SPEED] = v
+    z[..., OBS_YAW] = psi
+    H = np.concatenate((Hp, Hv, Hpsi), axis=-2)
     if rows is None:
         return z, H
-    return z[rows], H[rows]
+    return z[..., rows], H[..., rows, :]
 
 
 # ---------------------------------------------------------------------------

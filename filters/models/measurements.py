@@ -4,8 +4,9 @@ They index the state by the positions of :mod:`filters.models.vehicle`
 (``p_e, p_n`` at 0, 1; ``v_e, v_n, psi`` at 2, 3, 4), so they serve the
 2-state RFID model (ranges and fixes only), the 5-state model and any larger
 state that starts with these entries. ``x`` may be one state ``(n,)`` or a
-stack ``(k, n)``; Jacobians are returned for a single state only, and
-skipped with ``jacobian=False``.
+stack ``(k, n)``; Jacobians are returned for a single state only (the
+wheel speed, compass and position fix also for a stack: ``(k, m, n)``,
+one per state), and skipped with ``jacobian=False``.
 """
 
 from __future__ import annotations
@@ -61,17 +62,20 @@ def wheel_speed(x: np.ndarray, jacobian: bool = True):
     Returns
     -------
     speed_mps : float or (k,) array
-    H : (1, n) array or None
+    H : (1, n) or (k, 1, n) array, or None
     """
     x = np.asarray(x, dtype=np.float64)
-    c, s = np.cos(x[..., YAW]), np.sin(x[..., YAW])
-    v = x[..., VE] * c + x[..., VN] * s
+    if x.ndim == 1:  # one state: plain floats (the EKFs' hot path)
+        ve, vn, yaw = x[VE : YAW + 1].tolist()
+        c, s = math.cos(yaw), math.sin(yaw)
+    else:
+        ve, vn, yaw = x[..., VE], x[..., VN], x[..., YAW]
+        c, s = np.cos(yaw), np.sin(yaw)
+    v = ve * c + vn * s
     if not jacobian:
         return v, None
-    H = np.zeros((1, x.shape[-1]))
-    H[0, VE] = c
-    H[0, VN] = s
-    H[0, YAW] = -x[VE] * s + x[VN] * c
+    H = np.zeros(x.shape[:-1] + (1, x.shape[-1]))
+    H[..., 0, VE], H[..., 0, VN], H[..., 0, YAW] = c, s, -ve * s + vn * c
     return v, H
 
 
@@ -114,13 +118,13 @@ def compass_yaw(x: np.ndarray, jacobian: bool = True):
     Returns
     -------
     yaw_rad : float or (k,) array
-    H : (1, n) array or None
+    H : (1, n) or (k, 1, n) array, or None
     """
     x = np.asarray(x, dtype=np.float64)
     if not jacobian:
         return x[..., YAW], None
-    H = np.zeros((1, x.shape[-1]))
-    H[0, YAW] = 1.0
+    H = np.zeros(x.shape[:-1] + (1, x.shape[-1]))
+    H[..., 0, YAW] = 1.0
     return x[..., YAW], H
 
 
@@ -130,11 +134,11 @@ def position_fix(x: np.ndarray, jacobian: bool = True):
     Returns
     -------
     en_m : (2,) or (k, 2) array
-    H : (2, n) array or None
+    H : (2, n) or (k, 2, n) array, or None
     """
     x = np.asarray(x, dtype=np.float64)
     if not jacobian:
         return x[..., :2].copy(), None
-    H = np.zeros((2, x.shape[-1]))
-    H[0, PE] = H[1, PN] = 1.0
+    H = np.zeros(x.shape[:-1] + (2, x.shape[-1]))
+    H[..., 0, PE] = H[..., 1, PN] = 1.0
     return x[..., :2].copy(), H

@@ -99,15 +99,30 @@ def improved_motion(x: np.ndarray, u: np.ndarray, dt_s: float, jacobian: bool = 
     F[PN, YAW] = half_t2 * a_e
     F[VE, YAW] = -dt_s * a_n
     F[VN, YAW] = dt_s * a_e
-    if not input_jacobian:
-        return out, (F, None)
-    G = np.zeros((x.shape[0], 3))
+    return out, (F, _input_jacobian(x.shape[0], c, s, dt_s) if input_jacobian else None)
+
+
+def improved_motion_input_jacobian(x: np.ndarray, dt_s: float) -> np.ndarray:
+    """``G = d x_next / d u`` (n, 3) of :func:`improved_motion` for a single state.
+
+    It depends on the yaw and the step only (not on the input), so a model
+    that needs the accelerations' noise without eq. 16's motion (the CT
+    model of song2014) takes it alone.
+    """
+    yaw = float(x[YAW])
+    return _input_jacobian(np.shape(x)[0], math.cos(yaw), math.sin(yaw), dt_s)
+
+
+def _input_jacobian(n: int, c: float, s: float, dt_s: float) -> np.ndarray:
+    """``G`` of eq. 16 for a state of ``n`` entries, from ``cos psi``, ``sin psi`` and the step."""
+    half_t2 = 0.5 * dt_s * dt_s
+    G = np.zeros((n, 3))
     G[PE, 0], G[PE, 1] = half_t2 * c, -half_t2 * s
     G[PN, 0], G[PN, 1] = half_t2 * s, half_t2 * c
     G[VE, 0], G[VE, 1] = dt_s * c, -dt_s * s
     G[VN, 0], G[VN, 1] = dt_s * s, dt_s * c
     G[YAW, 2] = dt_s
-    return out, (F, G)
+    return G
 
 
 def rotating_velocity_motion(x: np.ndarray, yaw_rate_radps: float, dt_s: float, jacobian: bool = True):

@@ -102,3 +102,13 @@ def test_dr_observation_jacobian_and_sign(x):
     rate = (np.arctan2(v1[1], v1[0]) - np.arctan2(v0[1], v0[0])) / dt
     assert z[0] == pytest.approx(rate, rel=1e-4)
     assert z[1] == pytest.approx(0.1 * np.hypot(*v0))
+
+
+def test_observation_of_a_stack_is_each_state_observed():
+    X = np.array(STATES)
+    rows = np.array([0, 2, 3])
+    z, H = km.position_speed_yaw_observation(X, rows)
+    for x, zi, Hi in zip(X, z, H):
+        z1, H1 = km.position_speed_yaw_observation(x, rows)
+        np.testing.assert_allclose(zi, z1, rtol=1e-15, atol=1e-15)
+        np.testing.assert_allclose(Hi, H1, rtol=1e-15, atol=1e-15)
