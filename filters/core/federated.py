@@ -11,6 +11,7 @@ from typing import Sequence
 
 import numpy as np
 
+from filters.core.linalg import solve_spd
 from filters.models.angles import wrap_angle
 
 
@@ -56,7 +57,7 @@ def fuse(
         d = np.asarray(x, dtype=np.float64) - x_g
         for i in angle_states:
             d[i] = wrap_angle(float(d[i]))
-        K = np.linalg.solve(P_g + P, P_g).T  # P_g (P_g + P)^-1, both symmetric
+        K = solve_spd(P_g + P, P_g).T  # P_g (P_g + P)^-1, both symmetric
         x_g = x_g + K.dot(d)
         P_g = P_g - K.dot(P_g)
     for i in angle_states:

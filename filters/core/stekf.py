@@ -33,6 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from filters.core.linalg import solve_spd
 from filters.models.angles import wrap_angle
 from graphpos.errors import ConfigError
 
@@ -168,8 +169,11 @@ def step(
     PHt = P_pred @ Ht
     HPt = PHt.transpose(0, 2, 1)
     S = H @ PHt + R
-    # one solve for the gain K = P H^T S^-1 (S symmetric) and S^-1 g
-    solved = np.linalg.solve(S, np.concatenate((HPt, g[:, :, None]), axis=2))
+    # one solve per filter for the gain K = P H^T S^-1 (S symmetric) and S^-1 g
+    rhs = np.concatenate((HPt, g[:, :, None]), axis=2)
+    solved = np.empty_like(rhs)
+    for i, (S_i, rhs_i) in enumerate(zip(S, rhs)):
+        solved[i] = solve_spd(S_i, rhs_i)
     K = solved[:, :, :-1].transpose(0, 2, 1)
     whitened = solved[:, :, -1]
     x = x_pred + (PHt @ solved[:, :, -1:])[:, :, 0]  # K g

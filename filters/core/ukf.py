@@ -23,6 +23,7 @@ from typing import Callable, Sequence
 import numpy as np
 
 from filters.core.ekf import gate_scalar_rows
+from filters.core.linalg import cholesky_lower, solve_spd
 from filters.models.angles import circular_mean, wrap_angle
 
 
@@ -66,10 +67,7 @@ class MerweScaledSigmaPoints:
         yaw sigma).
         """
         x, P = np.asarray(x), np.asarray(P)
-        try:
-            L = np.linalg.cholesky(self.scale * P)
-        except np.linalg.LinAlgError:
-            L = self._cholesky_projected(P)
+        L = self._cholesky(P) if P.ndim == 2 else np.stack([self._cholesky(p) for p in P])
         Lt = np.swapaxes(L, -1, -2)
         out = np.empty(x.shape[:-1] + (2 * self.n + 1, self.n))
         xs = x[..., None, :]
@@ -78,14 +76,10 @@ class MerweScaledSigmaPoints:
         out[..., self.n + 1 :, :] = xs - Lt
         return out
 
-    def _cholesky_projected(self, P: np.ndarray) -> np.ndarray:
-        """Cholesky factors of ``scale * P``, each ``P`` that is not positive definite projected first."""
-        if P.ndim > 2:
-            return np.stack([self._cholesky_projected(p) for p in P])
-        try:
-            return np.linalg.cholesky(self.scale * P)
-        except np.linalg.LinAlgError:
-            return np.linalg.cholesky(self.scale * nearest_positive_definite(P))
+    def _cholesky(self, P: np.ndarray) -> np.ndarray:
+        """Lower Cholesky factor of ``scale * P``, ``P`` projected first when it is not positive definite."""
+        L = cholesky_lower(self.scale * P)
+        return L if L is not None else np.linalg.cholesky(self.scale * nearest_positive_definite(P))
 
 
 def nearest_positive_definite(P: np.ndarray, floor: float = 1e-12) -> np.ndarray:
@@ -115,14 +109,11 @@ def _deviations(points: np.ndarray, mean: np.ndarray, angles: Sequence[int]) -> 
 
 
 def _inverse(S: np.ndarray) -> np.ndarray:
-    """Inverse of a small SPD matrix (closed form for 1x1 and 2x2: the hot path)."""
-    m = S.shape[0]
-    if m == 1:
+    """Inverse of a 1x1 or 2x2 SPD matrix, in closed form."""
+    if S.shape[0] == 1:
         return 1.0 / S
-    if m == 2:
-        a, b, c, d = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
-        return np.array([[d, -b], [-c, a]]) / (a * d - b * c)
-    return np.linalg.inv(S)
+    a, b, c, d = S[0, 0], S[0, 1], S[1, 0], S[1, 1]
+    return np.array([[d, -b], [-c, a]]) / (a * d - b * c)
 
 
 class UnscentedKalmanFilter:
@@ -255,11 +246,16 @@ class UnscentedKalmanFilter:
         else:
             accepted = np.ones(nu.shape[0], dtype=bool)
         Pxz = dx.T.dot(Wc[:, None] * dz)
-        Pzz_inv = _inverse(Pzz)
-        K = Pxz.dot(Pzz_inv)
+        # K = Pxz Pzz^-1 and Pzz^-1 nu: closed forms for one or two rows, else one Cholesky solve for both
+        if nu.shape[0] <= 2:
+            Pzz_inv = _inverse(Pzz)
+            K, whitened = Pxz.dot(Pzz_inv), Pzz_inv.dot(nu)
+        else:
+            solved = solve_spd(Pzz, np.column_stack((Pxz.T, nu)))
+            K, whitened = solved[:, :-1].T, solved[:, -1]
         x = self.x + K.dot(nu)
         for i in self.angle_states:
             x[i] = wrap_angle(float(x[i]))
-        P = self.P - K.dot(Pzz).dot(K.T)
+        P = self.P - K.dot(Pxz.T)  # K Pzz K^T = K Pxz^T
         self.x, self.P = x, 0.5 * (P + P.T)
-        return float(nu.dot(Pzz_inv).dot(nu)), accepted
+        return float(nu.dot(whitened)), accepted
