@@ -208,7 +208,8 @@ class Song2014Fusion(FilterEstimator):
             self._step(t_s, epoch)
         x, P = self._combined()
         self._mu_log.append(self._mu.tolist())
-        return OutputRow(t_s, float(x[0]), float(x[1]), float(x[2]), float(x[3]), float(x[4]), P[:2, :2].copy())
+        east, north, v_east, v_north, yaw = x[:5].tolist()
+        return OutputRow(t_s, east, north, v_east, v_north, yaw, P[:2, :2].copy())
 
     def finish(self) -> Estimate:
         if not self._started:
@@ -234,10 +235,9 @@ class Song2014Fusion(FilterEstimator):
             states, covs, predicted = imm.mix(self._states, self._covs, self._mu, self._markov, (km.PSI,))
         else:
             states, covs, predicted = self._states, self._covs, self._mu
-        preds = [self._predict(name, states[i], T) for i, name in enumerate(cfg.models)]
-        x_pred = np.array([p[0] for p in preds])
-        A = np.array([p[1] for p in preds])
-        Q = np.array([p[2] for p in preds])
+        x_pred, A, Q = np.empty((n, 6)), np.empty((n, 6, 6)), np.empty((n, 6, 6))
+        for i, name in enumerate(cfg.models):
+            x_pred[i], A[i], Q[i] = self._predict(name, states[i], T)
         if rows.size:
             z_pred, H = km.position_speed_yaw_observation(x_pred, rows)
             yaw_rows = (rows.size - 1,) if rows[-1] == km.OBS_YAW else ()  # the compass row comes last

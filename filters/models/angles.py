@@ -13,13 +13,15 @@ import math
 import numpy as np
 
 _TWO_PI = 2.0 * math.pi
+# The same constants as 0-d arrays: numpy combines them with an array faster than Python floats.
+_PI_ARRAY, _TWO_PI_ARRAY = np.array(math.pi), np.array(_TWO_PI)
 
 
 def wrap_angle(angle_rad):
     """Wrap to ``[-pi, pi)`` (float or array)."""
     if isinstance(angle_rad, float):
         return (angle_rad + math.pi) % _TWO_PI - math.pi
-    return (np.asarray(angle_rad) + np.pi) % _TWO_PI - np.pi
+    return (np.asarray(angle_rad) + _PI_ARRAY) % _TWO_PI_ARRAY - _PI_ARRAY
 
 
 def angle_residual(a_rad, b_rad):
