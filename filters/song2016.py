@@ -779,7 +779,9 @@ class Fukf(FilterEstimator):
         wheel_at, wheel_mps, compass_at, compass_rad = iv.wheel_at, iv.wheel_mps, iv.compass_at, iv.compass_rad
         f1, f2 = self._local
         n_pts = 2 * 5 + 1
-        sig = self._points.sigma_points(np.array([f1.x, f2.x]), np.array([f1.P, f2.P])).reshape(2 * n_pts, 5)
+        sig = np.empty((2 * n_pts, 5))
+        self._points.sigma_points(f1.x, f1.P, out=sig[:n_pts])
+        self._points.sigma_points(f2.x, f2.P, out=sig[n_pts:])
         traj = _propagate_steps(sig, dt_s, u, has_accel)
         Q = _process_noise(self.config, float(dt_s.sum()), _accel_psd(self.config, bool(has_accel.all())))
         f1.predict_points(traj[:n_pts, -1], Q / self._beta[0])

@@ -53,9 +53,8 @@ class MerweScaledSigmaPoints:
         self.Wm[0] = lam / self.scale
         self.Wc[0] = lam / self.scale + 1.0 - alpha * alpha + beta
 
-    def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """(2n+1, n) sigma points of ``N(x, P)``; for a stack of ``k`` estimates
-        (``x`` (k, n), ``P`` (k, n, n)), (k, 2n+1, n), each as if drawn alone.
+    def sigma_points(self, x: np.ndarray, P: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """(2n+1, n) sigma points of ``N(x, P)`` (written into ``out`` when given).
 
         A ``P`` that has lost positive definiteness is first projected onto
         the nearest positive-definite matrix (:func:`nearest_positive_definite`).
@@ -66,20 +65,15 @@ class MerweScaledSigmaPoints:
         with a traceback (MRCLAM6 robot 3 from a start pose with a 30 deg
         yaw sigma).
         """
-        x, P = np.asarray(x), np.asarray(P)
-        L = self._cholesky(P) if P.ndim == 2 else np.stack([self._cholesky(p) for p in P])
-        Lt = np.swapaxes(L, -1, -2)
-        out = np.empty(x.shape[:-1] + (2 * self.n + 1, self.n))
-        xs = x[..., None, :]
-        out[..., 0, :] = x
-        out[..., 1 : self.n + 1, :] = xs + Lt
-        out[..., self.n + 1 :, :] = xs - Lt
-        return out
-
-    def _cholesky(self, P: np.ndarray) -> np.ndarray:
-        """Lower Cholesky factor of ``scale * P``, ``P`` projected first when it is not positive definite."""
         L = cholesky_lower(self.scale * P)
-        return L if L is not None else np.linalg.cholesky(self.scale * nearest_positive_definite(P))
+        if L is None:
+            L = np.linalg.cholesky(self.scale * nearest_positive_definite(P))
+        if out is None:
+            out = np.empty((2 * self.n + 1, self.n))
+        out[0] = x
+        np.add(x, L.T, out=out[1 : self.n + 1])
+        np.subtract(x, L.T, out=out[self.n + 1 :])
+        return out
 
 
 def nearest_positive_definite(P: np.ndarray, floor: float = 1e-12) -> np.ndarray:
