@@ -243,7 +243,7 @@ class Song2014Fusion(FilterEstimator):
             yaw_rows = (rows.size - 1,) if rows[-1] == km.OBS_YAW else ()  # the compass row comes last
             s = stekf.step(x_pred, A, covs, Q, z, z_pred, H, R, rows, self._memory, cfg.fading, yaw_rows)
             new_states, new_covs = s.x, s.P
-            log_likelihoods = imm.log_likelihood(s.innovation, s.innovation_cov, s.whitened_innovation)
+            log_likelihoods = imm.log_likelihood(s.innovation, s.innovation_cov, s.whitened_innovation, s.innovation_logdet)
             self._fading_log.extend(s.fading.tolist())
         else:
             new_states, new_covs = x_pred, A @ covs @ np.swapaxes(A, 1, 2) + Q
@@ -260,12 +260,12 @@ class Song2014Fusion(FilterEstimator):
         if name == "ca":
             x_ca, A_ca, B_ca = km.ca_transition(x, u[:2], T)
             var_a = cfg.accel_sigma_mps2**2 + cfg.ca_accel_noise_mps2**2
-            Q = var_a * (B_ca @ B_ca.T)
+            Q = var_a * B_ca.dot(B_ca.T)
             Q[km.OMEGA, km.OMEGA] += cfg.ca_yaw_accel_noise_radps2**2 * T
             return x_ca, A_ca, Q
         B_ca = km.ca_input_jacobian(x, T)
         x_ct, A_ct, B_ct = km.ct_transition(x, u[2:], T)
-        Q = cfg.ct_accel_noise_mps2**2 * (B_ca @ B_ca.T) + cfg.gyro_sigma_radps**2 * (B_ct @ B_ct.T)
+        Q = cfg.ct_accel_noise_mps2**2 * B_ca.dot(B_ca.T) + cfg.gyro_sigma_radps**2 * B_ct.dot(B_ct.T)
         return x_ct, A_ct, Q
 
     def _observation(self, t_s: float, epoch: _Epoch) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -41,8 +41,10 @@ def _weighted_moments(
     for i in angle_states:
         x[:, i] = wrap_angle(x[:, i])
     d = _spread(X[:, None, :], x[None, :, :], angle_states)  # (j, i, n)
-    spread = np.einsum("ji,jia,jib->iab", weights, d, d)
-    return x, np.einsum("ji,jab->iab", weights, P) + spread
+    # sum_j w_ji d_ji d_ji^T and sum_j w_ji P_j as matrix products (cheaper than einsum on these sizes)
+    spread = (weights[:, :, None] * d).transpose(1, 2, 0) @ d.transpose(1, 0, 2)
+    k, n = P.shape[0], P.shape[1]
+    return x, (weights.T @ P.reshape(k, n * n)).reshape(-1, n, n) + spread
 
 
 def mix(
@@ -68,20 +70,25 @@ def mix(
     return x0, P0, predicted
 
 
-def log_likelihood(innovation: np.ndarray, innovation_cov: np.ndarray, whitened: np.ndarray | None = None) -> np.ndarray:
+def log_likelihood(
+    innovation: np.ndarray, innovation_cov: np.ndarray, whitened: np.ndarray | None = None, logdet: np.ndarray | None = None
+) -> np.ndarray:
     """Gaussian log-likelihoods of stacked innovations (k, r) with covariances
     (k, r, r), song2014 eq. (40).
 
-    ``whitened`` is ``S^-1 g`` (k, r) when the caller has it already (the
-    STEKF step solves for it with its gain, :class:`filters.core.stekf.Step`).
+    ``whitened`` (``S^-1 g``, (k, r)) and ``logdet`` (``log det S``, (k,))
+    are taken when the caller has them already (the STEKF step has them
+    from the solve for its gain, :class:`filters.core.stekf.Step`).
     """
-    if innovation.shape[-1] == 0:
+    r = innovation.shape[-1]
+    if r == 0:
         return np.zeros(innovation.shape[0])
-    _, logdet = np.linalg.slogdet(2.0 * np.pi * innovation_cov)
+    if logdet is None:
+        logdet = np.linalg.slogdet(innovation_cov)[1]
     if whitened is None:
         whitened = np.linalg.solve(innovation_cov, innovation[..., None])[..., 0]
     maha = np.einsum("ki,ki->k", innovation, whitened)
-    return -0.5 * maha - 0.5 * logdet
+    return -0.5 * (maha + logdet + r * math.log(2.0 * math.pi))
 
 
 def update_probabilities(predicted: np.ndarray, log_likelihoods: np.ndarray) -> np.ndarray:

@@ -26,5 +26,14 @@ def solve_spd(A: np.ndarray, B: np.ndarray) -> np.ndarray:
     """``A^-1 B`` for a symmetric positive-definite ``A`` (its upper triangle
     is read), through its Cholesky factor; by LU (``np.linalg.solve``) when
     ``A`` is not positive definite."""
-    _, X, info = lapack.dposv(A, B)
-    return X if info == 0 else np.linalg.solve(A, B)
+    return solve_spd_logdet(A, B)[0]
+
+
+def solve_spd_logdet(A: np.ndarray, B: np.ndarray) -> tuple[np.ndarray, float]:
+    """:func:`solve_spd` and ``log det A``, the latter from the same Cholesky
+    factor (``2 sum log diag``; ``np.linalg.slogdet`` when ``A`` is not
+    positive definite)."""
+    factor, X, info = lapack.dposv(A, B)
+    if info != 0:
+        return np.linalg.solve(A, B), float(np.linalg.slogdet(A)[1])
+    return X, 2.0 * float(np.log(factor.diagonal()).sum())

@@ -33,7 +33,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from filters.core.linalg import solve_spd
+from filters.core.linalg import solve_spd_logdet
 from filters.models.angles import wrap_angle
 from graphpos.errors import ConfigError
 
@@ -92,6 +92,9 @@ class FadingMemory:
         return ``lambda`` (k,); ``HA = H A`` (k, r, n), ``HQH = H Q H^T``."""
         g2 = g * g  # the diagonal of g g^T
         rho = config.forgetting_factor
+        first, last = int(rows[0]), int(rows[-1])
+        if last - first + 1 == len(rows):  # consecutive rows (nearly every epoch): a view, cheaper than fancy indexing
+            rows = slice(first, last + 1)
         S = (rho * self.S_diag[:, rows] + g2) / (1.0 + rho) if self.seen[rows].all() else g2
         self.S_diag[:, rows] = S
         self.seen[rows] = True
@@ -111,9 +114,10 @@ class Step(NamedTuple):
     innovation: np.ndarray
     innovation_cov: np.ndarray
     fading: np.ndarray
-    #: ``S^-1 g`` of each filter (from the same solve as the gain; the IMM
-    #: likelihood's Mahalanobis term is ``g^T S^-1 g``).
+    #: ``S^-1 g`` of each filter and ``log det S``, from the same Cholesky
+    #: solve as the gain (the IMM likelihood's terms, song2014 eq. 40).
     whitened_innovation: np.ndarray
+    innovation_logdet: np.ndarray
 
 
 def step(
@@ -171,11 +175,11 @@ def step(
     S = H @ PHt + R
     # one solve per filter for the gain K = P H^T S^-1 (S symmetric) and S^-1 g
     rhs = np.concatenate((HPt, g[:, :, None]), axis=2)
-    solved = np.empty_like(rhs)
+    solved, logdet = np.empty_like(rhs), np.empty(len(S))
     for i, (S_i, rhs_i) in enumerate(zip(S, rhs)):
-        solved[i] = solve_spd(S_i, rhs_i)
+        solved[i], logdet[i] = solve_spd_logdet(S_i, rhs_i)
     K = solved[:, :, :-1].transpose(0, 2, 1)
     whitened = solved[:, :, -1]
     x = x_pred + (PHt @ solved[:, :, -1:])[:, :, 0]  # K g
     P_new = P_pred - K @ HPt  # K S K^T = K (P H^T)^T
-    return Step(x, 0.5 * (P_new + P_new.transpose(0, 2, 1)), g, S, lam, whitened)
+    return Step(x, 0.5 * (P_new + P_new.transpose(0, 2, 1)), g, S, lam, whitened, logdet)
