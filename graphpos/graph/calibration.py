@@ -44,21 +44,22 @@ def estimate_range_scale(builder, initial: gtsam.Values, config: GraphConfig, wh
     """
     from graphpos.graph.estimators import optimise
 
-    solved: dict[float, tuple[float, gtsam.Values]] = {}
     warm = [initial]
+    # the best solve so far (error, scale, values): only its values are kept, an hour-long drive's are tens of MB
+    best: list = [math.inf, None, None]
 
     def solved_error(scale: float) -> float:
         graph = builder.graph(scale)
         values = optimise(graph, warm[0], config, f"{what} (range scale {scale:.4f})")
         warm[0] = values
         err = graph.error(values)
-        solved[scale] = (err, values)
+        if err < best[0]:
+            best[:] = [err, scale, values]
         return err
 
     result = minimize_scalar(solved_error, bounds=config.range_scale_bounds, method="bounded", options={"xatol": SCALE_TOLERANCE})
-    best = min(solved, key=lambda s: solved[s][0])
     builder.diagnostics["range_scale_solves"] = int(result.nfev)
-    return float(best), solved[best][1]
+    return float(best[1]), best[2]
 
 
 #: Step of the range-offset search, m: the graph is solved at the centre and this far either side.

@@ -116,16 +116,21 @@ def test_graph_batch_finds_a_compass_bias_without_truth(bias_deg):
 
 
 def test_graph_isam2_learns_a_compass_bias_online():
-    """graph-isam2 learns the compass bias with its online profile (applied beyond 2 sigmas) and corrects the readings to come."""
-    d = synthetic_drive(60, seed=5, turn_radps=0.05, tag_gap=(60.0, 220.0))
+    """graph-isam2 learns the compass bias with its online profile and corrects the readings to come.
+
+    It applies a bias found again by the next learning (here at 30 s), so
+    the drive is long and its stretch without tags comes late (140-180 s):
+    the corrected compass holds the heading there (measured, seeds 5/6:
+    0.43/0.53 m against 2.25/1.92 m with the bias taken as noise).
+    """
+    d = synthetic_drive(200, seed=5, tag_gap=(700.0, 900.0))
     d = d.replace(channels={**d.channels, "compass": d.compass.replace(yaw_rad=d.compass.yaw_rad + math.radians(2.0))})
     est = ESTIMATORS["graph-isam2"]().run(d.without_truth())
     learnt = [step["compass_bias_rad"] for step in est.diagnostics["online_calibration"]]
+    assert learnt[0] == 0.0  # the first learning's bias waits for the second's
     assert math.degrees(learnt[-1]) == pytest.approx(2.0, abs=0.5)
     taken_as_noise = ESTIMATORS["graph-isam2"](GraphConfig(compass_bias="off")).run(d.without_truth())
-
-
-    assert rms(d, est) < 0.8 * rms(d, taken_as_noise)
+    assert rms(d, est) < 0.5 * rms(d, taken_as_noise)
 
 
 @pytest.mark.parametrize("seed", [3, 4])
