@@ -47,7 +47,7 @@ from graphpos.drive import Drive
 from graphpos.errors import ConfigError, FileFormatError
 
 #: Plausible limits of each correction; a profile outside them is refused.
-_LIMITS = {
+PLAUSIBLE_LIMITS = {
     "gyro_bias_radps": (-0.2, 0.2),
     "yaw_rate_scale": (0.5, 2.0),
     "wheel_scale": (0.5, 2.0),
@@ -109,7 +109,7 @@ class SensorProfile:
     source: dict[str, Any] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        for name, (lo, hi) in _LIMITS.items():
+        for name, (lo, hi) in PLAUSIBLE_LIMITS.items():
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
                 raise ConfigError(f"sensor profile: {name} = {value!r} is outside the plausible range [{lo:g}, {hi:g}]")

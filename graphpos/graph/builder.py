@@ -263,7 +263,7 @@ class GraphBuilder:
         self.odometry_records: list[tuple[int, OdometryDelta]] = []
         #: (keyframe, compass yaw) of every compass factor, rebuilt by :meth:`graph` with or without the compass bias.
         self.compass_records: list[tuple[int, float]] = []
-        #: Prior sigma of the compass bias (rad) :meth:`graph` estimates; None: the compass factors as built online.
+        #: Prior sigma of the compass bias (rad) :meth:`graph` estimates (:meth:`estimate_compass_bias`); None: the compass factors as built online.
         self.compass_bias_sigma_rad: float | None = None
         self.wheel_scale: float | None = None  # None: wheel factors as built online
         self.wheel_drift_density: float | None = None  # with wheel_scale None: rebuild the drift term at this density
@@ -421,7 +421,9 @@ class GraphBuilder:
         if ch not in ABSOLUTE_FIELDS or not all([self._finite(m, name) for name in ABSOLUTE_FIELDS[ch]]):
             return None
         if ch == "compass":
-            return ("compass", _wrap(float(v["yaw_rad"]) - self.corrections.compass_bias_rad))
+            if self.corrections.compass_bias_rad:
+                v = self.corrections.corrected_values("compass", v)  # a compass bias learnt online (graph-isam2)
+            return ("compass", float(v["yaw_rad"]))
         if ch == "rsu":
             if math.isfinite(v.get("range_m", math.nan)):
                 return ("range", ("rsu", int(v["rsu_id"])), float(v["range_m"]), float(v["sigma_m"]), None, math.nan)
@@ -725,7 +727,7 @@ class GraphBuilder:
 
     def correct_compass_records(self, bias_rad: float) -> None:
         """Correct the recorded compass readings as a learnt compass bias corrects those to come: ``reading - bias``."""
-        self.compass_records = [(k, _wrap(yaw - bias_rad)) for k, yaw in self.compass_records]
+        self.compass_records = [(k, wrap_angle(yaw - bias_rad)) for k, yaw in self.compass_records]
 
     def range_factor(self, record: RangeRecord, scale: float, offset: float = 0.0):
         """Rebuild a recorded range factor for another range scale and offset: ``(reading - offset) / scale``."""
@@ -738,7 +740,7 @@ class GraphBuilder:
         :attr:`wheel_scale` (else with the drift term at :attr:`wheel_drift_density`, else as built online),
         their heading loosened by ``extra_turn_density2`` (:meth:`OdometryDelta.with_turn_density`),
         compass factors with the compass bias as an unknown when :attr:`compass_bias_sigma_rad` is set
-        (its prior: zero +- that sigma; :meth:`with_compass_frame` gives it a value)."""
+        (its prior: zero +- that sigma; :meth:`estimate_compass_bias`)."""
         scale = self.range_scale if scale is None else scale
         offset = self.range_offset_m if offset is None else offset
         g = gtsam.NonlinearFactorGraph(self.fixed_factors)
@@ -746,8 +748,7 @@ class GraphBuilder:
             g.add(self.range_factor(r, scale, offset))
         sigma = self.config.compass_sigma_rad
         if self.compass_bias_sigma_rad is not None and self.compass_records:
-            for f in self.model.compass_bias_prior(0.0, self.compass_bias_sigma_rad)[0]:
-                g.add(f)
+            g.add(self.model.compass_bias_prior(self.compass_bias_sigma_rad)[0])
             for k, yaw in self.compass_records:
                 g.add(self.model.compass_bias_factor(k, yaw, sigma))
         else:
@@ -761,14 +762,16 @@ class GraphBuilder:
             g.add(self.model.wheel_factor(k, delta, self.wheel_scale))
         return g
 
-    def with_compass_frame(self, values: gtsam.Values) -> gtsam.Values:
-        """``values`` with the compass frame (bias 0) added when :meth:`graph` estimates the bias and they lack it."""
+    def estimate_compass_bias(self, sigma_rad: float | None, values: gtsam.Values) -> gtsam.Values:
+        """From now on :meth:`graph` carries the compass bias (prior zero +- ``sigma_rad``; None: it no longer does);
+        ``values`` with the compass frame added at zero bias where the graph has it and they do not."""
         from graphpos.graph.models import COMPASS_BIAS_KEY
 
-        if self.compass_bias_sigma_rad is None or not self.compass_records or values.exists(COMPASS_BIAS_KEY):
+        self.compass_bias_sigma_rad = sigma_rad
+        if sigma_rad is None or not self.compass_records or values.exists(COMPASS_BIAS_KEY):
             return values
         out = gtsam.Values(values)
-        out.insert(COMPASS_BIAS_KEY, self.model.compass_bias_prior(0.0, self.compass_bias_sigma_rad)[1])
+        out.insert(COMPASS_BIAS_KEY, self.model.compass_bias_prior(sigma_rad)[1])
         return out
 
     def history_values(self, recent: gtsam.Values) -> gtsam.Values:
@@ -919,7 +922,3 @@ def _count(counts: dict[str, int], key: str) -> None:
     """One more of ``key`` in a diagnostics count."""
     counts[key] = counts.get(key, 0) + 1
 
-
-def _wrap(angle_rad: float) -> float:
-    """An angle wrapped to [-pi, pi) (:func:`filters.models.angles.wrap_angle`), unchanged when already there."""
-    return angle_rad if -math.pi <= angle_rad < math.pi else wrap_angle(angle_rad)

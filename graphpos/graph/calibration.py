@@ -27,6 +27,7 @@ from scipy.optimize import minimize_scalar
 
 from graphpos.graph.config import GraphConfig
 from graphpos.graph.models import COMPASS_BIAS_KEY
+from graphpos.profile import PLAUSIBLE_LIMITS
 
 #: Tolerance of the scale search (dimensionless).
 SCALE_TOLERANCE = 2e-4
@@ -170,7 +171,6 @@ MIN_TRAVEL_M = 2.0
 #: Limits of the fitted corrections (beyond them the fit is not trusted and clamped).
 YAW_RATE_SCALE_BOUNDS = (0.7, 1.4)
 GYRO_BIAS_BOUND_RADPS = math.radians(2.0)
-COMPASS_BIAS_BOUNDS_RAD = (-0.5, 0.5)
 
 
 def _windows(builder, values, since_keyframe: int = 0) -> dict[str, np.ndarray]:
@@ -348,7 +348,7 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
     if builder.has_tag_ranges and not builder.reports_ranges:
         fields["range_scale"] = float(builder.range_scale)  # an RSS model's distances: the scale search's (no other range term)
     if builder.compass_bias_sigma_rad is not None and values.exists(COMPASS_BIAS_KEY):
-        lo, hi = COMPASS_BIAS_BOUNDS_RAD
+        lo, hi = PLAUSIBLE_LIMITS["compass_bias_rad"]
         fields["compass_bias_rad"] = float(np.clip(builder.model.compass_bias(values), lo, hi))
     return SensorProfile(**fields, source={"drive": drive_name, "estimator": "graph-batch", "windows": int(T.size),
                                            "turned_rad": turned})

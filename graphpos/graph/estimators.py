@@ -248,9 +248,8 @@ class GraphIsam2(_GraphEstimator):
         # fitted to a solve whose heading may depart from the turn rate (graph-batch's first solve loosens it the same way)
         c = self.config
         loose2 = (c.turn_scale_density_per_sqrt_s * c.calibration_odometry_factor) ** 2 - c.turn_scale_density_per_sqrt_s**2
-        if c.compass_bias == "estimate" and b.compass_records:  # the compass bias, solved for with the rest (as graph-batch does)
-            b.compass_bias_sigma_rad = c.compass_bias_sigma_rad
-            values = b.with_compass_frame(values)
+        if c.compass_bias == "estimate":  # the compass bias, solved for with the rest (as graph-batch does)
+            values = b.estimate_compass_bias(c.compass_bias_sigma_rad, values)
         try:
             graph = b.graph(scale, extra_turn_density2=loose2)
             values = optimise(graph, values, c, what, relative_tol=1e-3)
@@ -258,7 +257,7 @@ class GraphIsam2(_GraphEstimator):
             if found is not None and found.compass_bias_rad:
                 found = dataclasses.replace(found, compass_bias_rad=self._confirmed_compass_bias(found.compass_bias_rad, graph, values, what))
         finally:
-            b.compass_bias_sigma_rad = None  # the final smoothing's graph has the compass as corrected
+            b.estimate_compass_bias(None, values)  # the final smoothing's graph has the compass as corrected
         if found is None:
             return
         # a camera's bearing term (with its offset) corrects the readings to come and those recorded; other
@@ -588,9 +587,8 @@ class GraphBatch(_GraphEstimator):
             raise gtsam_error(exc, f"{self.name}: initial estimate") from None
         self.smoother = None  # the seeding pass's Bayes tree is done with: its memory goes before the batch solves
         what = f"{self.name} on '{self._drive_name}'"
-        if self.config.compass_bias == "estimate" and self.builder.compass_records:
-            self.builder.compass_bias_sigma_rad = self.config.compass_bias_sigma_rad
-            initial = self.builder.with_compass_frame(initial)
+        if self.config.compass_bias == "estimate":
+            initial = self.builder.estimate_compass_bias(self.config.compass_bias_sigma_rad, initial)
         fit_wheel = self.config.wheel_scale == "estimate" and self.builder.odometry_records and self.builder.odometry.has_speed
         if self._estimates_range_scale() and self.builder.range_records:
             # the range scale first: the causal pass's ranges (unscaled) would

@@ -178,11 +178,11 @@ class PlanarModel:
         return gtsam.BetweenFactorPose2(COMPASS_BIAS_KEY, X(k), gtsam.Pose2(0.0, 0.0, yaw_rad),
                                         compass_noise(np.array([free, free, sigma_rad]), self.config, 3))
 
-    def compass_bias_prior(self, bias_rad: float, sigma_rad: float) -> tuple[list, object]:
-        """The compass frame's prior (the bias ``bias_rad`` +- ``sigma_rad``, its origin fixed) and initial value."""
+    def compass_bias_prior(self, sigma_rad: float) -> tuple[object, object]:
+        """The compass frame's prior (bias zero +- ``sigma_rad``, its origin fixed) and its value there."""
         fixed = COMPASS_FRAME_FIXED_SIGMA
-        value = gtsam.Pose2(0.0, 0.0, -bias_rad)
-        return [gtsam.PriorFactorPose2(COMPASS_BIAS_KEY, value, gtsam.noiseModel.Diagonal.Sigmas(np.array([fixed, fixed, sigma_rad])))], value
+        value = gtsam.Pose2()
+        return gtsam.PriorFactorPose2(COMPASS_BIAS_KEY, value, gtsam.noiseModel.Diagonal.Sigmas(np.array([fixed, fixed, sigma_rad]))), value
 
     @staticmethod
     def compass_bias(values: gtsam.Values) -> float:
@@ -396,12 +396,12 @@ class InertialModel:
         noise = compass_noise(np.array([free, free, sigma_rad, free, free, free]), self.config, 6)
         return gtsam.BetweenFactorPose3(COMPASS_BIAS_KEY, X(k), gtsam.Pose3(gtsam.Rot3.Yaw(yaw_rad), np.zeros(3)), noise)
 
-    def compass_bias_prior(self, bias_rad: float, sigma_rad: float) -> tuple[list, object]:
-        """The compass frame's prior (the bias ``bias_rad`` +- ``sigma_rad``, the rest fixed) and initial value."""
+    def compass_bias_prior(self, sigma_rad: float) -> tuple[object, object]:
+        """The compass frame's prior (bias zero +- ``sigma_rad``, the rest fixed) and its value there."""
         fixed = COMPASS_FRAME_FIXED_SIGMA
-        value = gtsam.Pose3(gtsam.Rot3.Yaw(-bias_rad), np.zeros(3))
+        value = gtsam.Pose3()
         sigmas = np.array([fixed, fixed, sigma_rad, fixed, fixed, fixed])
-        return [gtsam.PriorFactorPose3(COMPASS_BIAS_KEY, value, gtsam.noiseModel.Diagonal.Sigmas(sigmas))], value
+        return gtsam.PriorFactorPose3(COMPASS_BIAS_KEY, value, gtsam.noiseModel.Diagonal.Sigmas(sigmas)), value
 
     @staticmethod
     def compass_bias(values: gtsam.Values) -> float:
