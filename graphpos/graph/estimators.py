@@ -692,7 +692,9 @@ def optimise(graph: gtsam.NonlinearFactorGraph, initial: gtsam.Values, config: G
     params.setRelativeErrorTol(relative_tol)
     params.setAbsoluteErrorTol(1e-6)
     try:
-        result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+        # a copy: the Values optimize() returns is the optimizer's own and keeps it (its linearised system) alive;
+        # the range-scale search holds two solutions, and an hour-long drive's optimizer is ~125 MB
+        result = gtsam.Values(gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize())
     except RuntimeError as exc:
         raise gtsam_error(exc, what) from None
     if not np.isfinite(graph.error(result)):
