@@ -13,8 +13,10 @@ order:
 
 (b) and (c) are solved together, with the compass where the drive has one,
 by robust least squares over the last :attr:`IgnitionConfig.window_s`
-seconds. The unknowns are the pose now (east, north, yaw); every earlier
-reading is placed relative to it by dead reckoning (wheel speed and yaw
+seconds. The unknowns are the pose now (east, north, yaw) and, where the
+readings determine it, the ranges' common scale (a nuisance with a prior at
+1: uncalibrated ranging is often several per cent long,
+:attr:`IgnitionConfig.range_scale_sigma`); every earlier reading is placed relative to it by dead reckoning (wheel speed and yaw
 rate, held between samples), whose error is allowed to grow with the
 distance driven since the reading. Without a compass the heading comes from
 the direction of travel, so it waits until the vehicle has moved
@@ -114,7 +116,10 @@ class StartState:
     """What ignition gives an estimator: its state at ``t_s`` and the 1-sigmas.
 
     ``source`` is ``user``, ``fix`` (GNSS/RSU fixes, with the compass or the
-    fix track for heading) or ``ranges``.
+    fix track for heading) or ``ranges``. ``range_scale``: the ranges'
+    common scale solved with the start when significant, else 1 (reported
+    only: a start-up figure to check a ranging calibration by; estimators
+    take a range scale from a sensor profile).
     """
 
     t_s: float
@@ -126,6 +131,7 @@ class StartState:
     yaw_sigma_rad: float
     speed_sigma_mps: float
     source: str
+    range_scale: float = 1.0
 
     @property
     def v_east_mps(self) -> float:
@@ -138,7 +144,8 @@ class StartState:
     def describe(self) -> dict[str, Any]:
         """JSON-serialisable summary for diagnostics."""
         return {"source": self.source, "t_s": self.t_s, "east_m": self.east_m, "north_m": self.north_m,
-                "yaw_rad": self.yaw_rad, "position_sigma_m": self.position_sigma_m, "yaw_sigma_rad": self.yaw_sigma_rad}
+                "yaw_rad": self.yaw_rad, "position_sigma_m": self.position_sigma_m, "yaw_sigma_rad": self.yaw_sigma_rad,
+                "range_scale": self.range_scale}
 
 
 @dataclass
@@ -172,6 +179,14 @@ class IgnitionConfig:
         Minimum time between two attempts.
     speed_sigma_mps : float
         1-sigma of the start speed taken from the wheel.
+    range_scale_sigma : float
+        1-sigma of the prior (1) on the ranges' unknown common scale, solved
+        with the pose within 3 sigmas of 1 and kept when significant
+        (:data:`RANGE_SCALE_SIGNIFICANCE`; 0: taken as exact). Ranging
+        without a calibration is often several per cent long (Plaza1's UWB
+        ranges 7 %, the ``realistic`` profile 5-8 %); read as exact, 60 m
+        ranges place the start metres off with a sigma that hides it
+        (Plaza1: 4.1 m off, sigma 0.77 m).
     """
 
     window_s: float = 60.0
@@ -186,6 +201,7 @@ class IgnitionConfig:
     chi2_margin: float = 9.0
     solve_every_s: float = 1.0
     speed_sigma_mps: float = 0.3
+    range_scale_sigma: float = 0.1
 
 
 #: Speed 1-sigma when the drive has no wheel speed, m/s.
@@ -206,6 +222,8 @@ _MIXED_PLACES = object()
 #: Number of trial headings and trial positions per heading of the multi-start solve.
 _HEADING_STARTS = 8
 _POSITION_STARTS = 6
+#: Ignition's start has the ranges' common scale solved for when it is off 1 by more than this many of its sigmas.
+RANGE_SCALE_SIGNIFICANCE = 2.0
 #: Residual (in sigmas) where ignition's soft-L1 loss turns from quadratic to linear.
 _ROBUST_SCALE = 2.0
 #: Two local minima of the multi-start closer than these are one (m, rad).
@@ -225,7 +243,7 @@ def _soft_l1(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return cost, F * rho1 / J_scale, J_scale
 
 
-def _distinct_minima(residuals, starts: np.ndarray, iterations: int = 60) -> list[tuple[np.ndarray, float]]:
+def _distinct_minima(residuals, starts: np.ndarray, has_yaw: bool, iterations: int = 60) -> list[tuple[np.ndarray, float]]:
     """The distinct local minima of ignition's robust cost reached from ``starts`` and their costs, best first.
 
     A Levenberg-Marquardt descent of every start at once (numpy-batched:
@@ -240,6 +258,7 @@ def _distinct_minima(residuals, starts: np.ndarray, iterations: int = 60) -> lis
     residuals : callable
         ``X (S, p) -> (F (S, N), J (S, N, p))``, whitened.
     starts : ndarray, shape (S, p)
+        East, north, then yaw when ``has_yaw``, then any other unknowns.
     """
     X = np.array(starts, dtype=float)
     F, J = residuals(X)
@@ -273,7 +292,7 @@ def _distinct_minima(residuals, starts: np.ndarray, iterations: int = 60) -> lis
     for i in np.argsort(cost):
         if not np.all(np.isfinite(X[i])):
             continue
-        if not any(np.hypot(*(X[i, :2] - m[:2])) < _SAME_MINIMUM_M and (X.shape[1] == 2 or abs(math.remainder(X[i, 2] - m[2], 2 * math.pi)) < _SAME_MINIMUM_RAD)
+        if not any(np.hypot(*(X[i, :2] - m[:2])) < _SAME_MINIMUM_M and (not has_yaw or abs(math.remainder(X[i, 2] - m[2], 2 * math.pi)) < _SAME_MINIMUM_RAD)
                    for m, _ in minima):
             minima.append((X[i], float(cost[i])))
     return minima
@@ -492,10 +511,10 @@ class Ignition:
             solution = self._solve(ranges, fixes, compass)
         if solution is None:
             return None
-        e, n, yaw, sigma_p, sigma_yaw, source = solution
+        e, n, yaw, sigma_p, sigma_yaw, source, range_scale = solution
         speed = self._speed if self.has_wheel else 0.0
         self.state = StartState(now, e, n, yaw, speed, sigma_p, sigma_yaw,
-                                c.speed_sigma_mps if self.has_wheel else UNKNOWN_SPEED_SIGMA_MPS, source)
+                                c.speed_sigma_mps if self.has_wheel else UNKNOWN_SPEED_SIGMA_MPS, source, range_scale)
         return self.state
 
     def _plausible(self, x: np.ndarray) -> bool:
@@ -503,7 +522,7 @@ class Ignition:
         return not len(self._tags) or between_walls(x[:2], self._tags, self._walls)
 
     def _solve(self, ranges: np.ndarray, fixes: np.ndarray, compass: np.ndarray, check_consistency: bool = False):
-        """Best (east, north, yaw) now, its sigmas and source; None while undetermined or ambiguous.
+        """Best (east, north, yaw) now, its sigmas, source and the ranges' scale; None while undetermined or ambiguous.
 
         ``check_consistency``: :data:`_MIXED_PLACES` when the best fit's
         residuals fail a chi-square test (0.1 %) and the readings span more
@@ -537,38 +556,52 @@ class Ignition:
         f_sig = np.sqrt(fixes[:, 3] ** 2 + f_dr**2) if len(fixes) else np.zeros(0)
         th_now = float(now_dr[2])
 
+        pose_columns = 2 if free_heading else 3
+
         def residuals(X: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             """Whitened residuals (S, N) and their analytic Jacobian (S, N, p) at S candidate starts (rows of X).
 
-            X holds (east, north, yaw), or (east, north) with a free heading (yaw 0).
+            X holds (east, north, yaw), or (east, north) with a free heading
+            (yaw 0), then optionally the ranges' scale (a range reads the
+            scale times the distance; prior 1 +- ``range_scale_sigma``).
+            Without it the scale is 1.
             """
             X = np.atleast_2d(X)
+            scaled = X.shape[1] > pose_columns
             e, n = X[:, :1], X[:, 1:2]
-            phi = (X[:, 2:3] if X.shape[1] == 3 else np.zeros_like(e)) - th_now  # start frame -> local frame
+            yaw = np.zeros_like(e) if free_heading else X[:, 2:3]
+            phi = yaw - th_now  # start frame -> local frame
             cp, sp = np.cos(phi), np.sin(phi)
             f, rows = [], []
+            zero = np.zeros_like(e)
             if len(ranges):
+                k = X[:, pose_columns:] if scaled else np.ones_like(e)
                 de = cp * r_rel[:, 0] - sp * r_rel[:, 1]  # each reading's offset from now, local frame
                 dn = sp * r_rel[:, 0] + cp * r_rel[:, 1]
                 ue, un = e + de - ranges[:, 1], n + dn - ranges[:, 2]
                 dist = np.hypot(ue, un)
-                f.append((dist - ranges[:, 3]) / r_sig)
+                f.append((k * dist - ranges[:, 3]) / r_sig)
+                d_k = dist / r_sig
                 dist = np.maximum(dist, 1e-9)
-                ue, un = ue / dist / r_sig, un / dist / r_sig
-                rows.append(np.stack([ue, un, un * de - ue * dn], axis=-1))
+                ue, un = k * ue / dist / r_sig, k * un / dist / r_sig
+                rows.append(np.stack([ue, un, un * de - ue * dn, d_k], axis=-1))
             if len(fixes):
                 de = cp * f_rel[:, 0] - sp * f_rel[:, 1]
                 dn = sp * f_rel[:, 0] + cp * f_rel[:, 1]
                 f += [(e + de - fixes[:, 1]) / f_sig, (n + dn - fixes[:, 2]) / f_sig]
-                one, zero = np.broadcast_to(1.0 / f_sig, de.shape), np.zeros_like(de)
-                rows += [np.stack([one, zero, -dn * one], axis=-1), np.stack([zero, one, de * one], axis=-1)]
+                one, nil = np.broadcast_to(1.0 / f_sig, de.shape), np.zeros_like(de)
+                rows += [np.stack([one, nil, -dn * one, nil], axis=-1), np.stack([nil, one, de * one, nil], axis=-1)]
             if len(compass):
-                d = (X[:, 2:3] if X.shape[1] == 3 else np.zeros_like(e)) + c_dth - compass[:, 1]
+                d = yaw + c_dth - compass[:, 1]
                 f.append(np.arctan2(np.sin(d), np.cos(d)) / c.compass_sigma_rad)
-                gain = np.broadcast_to(1.0 / c.compass_sigma_rad, d.shape)
-                rows.append(np.stack([np.zeros_like(d), np.zeros_like(d), gain], axis=-1))
+                gain, nil = np.broadcast_to(1.0 / c.compass_sigma_rad, d.shape), np.zeros_like(d)
+                rows.append(np.stack([nil, nil, gain, nil], axis=-1))
+            if scaled:
+                f.append((X[:, pose_columns:] - 1.0) / c.range_scale_sigma)
+                rows.append(np.stack([zero, zero, zero, np.full_like(e, 1.0 / c.range_scale_sigma)], axis=-1))
             J = np.concatenate(rows, axis=1)
-            return np.concatenate(f, axis=1), J[..., : X.shape[1]]
+            columns = [0, 1] + ([] if free_heading else [2]) + ([3] if scaled else [])
+            return np.concatenate(f, axis=1), J[..., columns]
 
         starts = []
         if len(fixes):
@@ -587,30 +620,49 @@ class Ignition:
             for yaw in yaws:
                 starts.append(np.array([a[0], a[1], yaw]))
         # refine the minima that can be the start or its rival: the best plausible one and those within the rival margin of it
-        minima = [(x, cost) for x, cost in _distinct_minima(residuals, np.array(starts)) if self._plausible(x)]
+        minima = [(x, cost) for x, cost in _distinct_minima(residuals, np.array(starts), has_yaw=not free_heading) if self._plausible(x)]
         if not minima:
             return None
-        fits = []
-        for x0 in [x for x, cost in minima if cost <= minima[0][1] + c.chi2_margin / 2 + 1.0]:
-            try:
-                fit = least_squares(lambda x: residuals(x)[0][0], x0, jac=lambda x: residuals(x)[1][0], loss="soft_l1", f_scale=_ROBUST_SCALE,
-                                    max_nfev=100, xtol=1e-12, ftol=1e-12, gtol=1e-12)
-            except (ValueError, np.linalg.LinAlgError):
-                continue
-            if np.all(np.isfinite(fit.x)):
-                fits.append(fit)
-        plausible = [f for f in fits if self._plausible(f.x)]
-        if not plausible:
-            return None
-        best = min(plausible, key=lambda f: f.cost)
         times = np.concatenate([ranges[:, 0], fixes[:, 0]])
+
+        def refine(scaled: bool):
+            """The refined plausible minima, the best, its covariance; None when none is, or it is not determined.
+
+            ``scaled``: with the ranges' scale free within 3 sigmas of its prior (unbounded, the robust loss would
+            let a tiny scale explain any set of ranges from afar).
+            """
+            k_bounds = (1.0 - 3.0 * c.range_scale_sigma, 1.0 + 3.0 * c.range_scale_sigma)
+            bounds = ([-np.inf] * pose_columns + [k_bounds[0]] * scaled, [np.inf] * pose_columns + [k_bounds[1]] * scaled)
+            fits = []
+            for x0 in [x for x, cost in minima if cost <= minima[0][1] + c.chi2_margin / 2 + 1.0]:
+                try:
+                    fit = least_squares(lambda x: residuals(x)[0][0], np.append(x0, [1.0] * scaled), jac=lambda x: residuals(x)[1][0],
+                                        bounds=bounds, loss="soft_l1", f_scale=_ROBUST_SCALE, max_nfev=100, xtol=1e-12, ftol=1e-12, gtol=1e-12)
+                except (ValueError, np.linalg.LinAlgError):
+                    continue
+                if np.all(np.isfinite(fit.x)):
+                    fits.append(fit)
+            plausible = [f for f in fits if self._plausible(f.x)]
+            if not plausible:
+                return None
+            best = min(plausible, key=lambda f: f.cost)
+            info = best.jac.T @ best.jac
+            if np.linalg.cond(info) > 1e10:
+                return None
+            return plausible, best, np.linalg.inv(info)
+
+        # the multi-start descends with the ranges' scale at 1; its minima are refined with the scale free, and that
+        # solution is kept when the scale is significantly off 1; else (the scale is not determined: one beacon, a
+        # single scan) the solution with the scale at 1, which a prior-bound scale would only widen
+        refined = refine(True) if len(ranges) and c.range_scale_sigma > 0 else None
+        if refined is not None and abs(refined[1].x[-1] - 1.0) < RANGE_SCALE_SIGNIFICANCE * math.sqrt(refined[2][-1, -1]):
+            refined = None
+        refined = refined or refine(False)
+        if refined is None:
+            return None
+        plausible, best, cov = refined
         if check_consistency and np.ptp(times) > SAME_EPOCH_S and 2.0 * best.cost > chi2.ppf(0.999, max(best.fun.size - best.x.size, 1)):
             return _MIXED_PLACES
-        J = best.jac
-        info = J.T @ J
-        if np.linalg.cond(info) > 1e10:
-            return None
-        cov = np.linalg.inv(info)
         sigma_p = math.sqrt(max(cov[0, 0], cov[1, 1]))
         sigma_yaw = math.pi if free_heading else math.sqrt(cov[2, 2])
         if sigma_p > c.max_position_sigma_m or (not free_heading and sigma_yaw > c.max_yaw_sigma_rad):
@@ -622,4 +674,5 @@ class Ignition:
                 return None  # a rival (a mirror image, a turned track) fits almost as well: wait
         yaw = 0.0 if free_heading else math.remainder(float(best.x[2]), 2 * math.pi)
         source = "fix" if len(fixes) else "ranges"
-        return float(best.x[0]), float(best.x[1]), yaw, sigma_p, sigma_yaw, source
+        range_scale = float(best.x[pose_columns]) if best.x.size > pose_columns else 1.0
+        return float(best.x[0]), float(best.x[1]), yaw, sigma_p, sigma_yaw, source, range_scale

@@ -23,11 +23,12 @@ def wall_tags(length_m: float = 200.0, spacing_m: float = 6.0, walls: tuple[int,
 
 
 def feed(ig: Ignition, duration_s: float, speed_mps=5.0, yaw_rate_radps=0.0, heard=None, compass=True, start=(0.0, 0.0, 0.0),
-         seed=0, range_sigma_m=0.2, wheel=True, stop_when_started=True):
+         seed=0, range_sigma_m=0.2, wheel=True, stop_when_started=True, range_scale=1.0, max_range_m=9.0):
     """Drive a constant speed / yaw rate path past ``heard`` tags (positions), feeding ignition like an estimator.
 
     Wheel and gyro at 20 Hz, compass (2 deg noise) at 10 Hz, ranges (within
-    9 m) at 1 Hz. Returns (state or None, truth function t -> (e, n, yaw)).
+    ``max_range_m``, read ``range_scale`` times long) at 1 Hz. Returns (state
+    or None, truth function t -> (e, n, yaw)).
     ``speed_mps`` may be a function of time.
     """
     rng = np.random.default_rng(seed)
@@ -47,9 +48,9 @@ def feed(ig: Ignition, duration_s: float, speed_mps=5.0, yaw_rate_radps=0.0, hea
             state = ig.compass(t, math.remainder(yaw + rng.normal(0, math.radians(2.0)), 2 * math.pi)) or state
         if heard is not None and i % 20 == 0:
             d = np.hypot(heard[:, 0] - e, heard[:, 1] - n)
-            near = d <= 9.0
+            near = d <= max_range_m
             if near.any():
-                r = d[near] + rng.normal(0, range_sigma_m, near.sum())
+                r = range_scale * d[near] + rng.normal(0, range_sigma_m, near.sum())
                 state = ig.ranges(t, heard[near], r, np.full(near.sum(), range_sigma_m)) or state
         if state is not None and stop_when_started:
             break
@@ -103,6 +104,28 @@ def test_standing_still_with_compass_starts():
     state, truth = feed(ig, 10.0, speed_mps=0.0, heard=tags, start=(10.0, 0.0, 0.3))
     assert state is not None and state.t_s <= 2.0 and abs(state.speed_mps) < 0.1
     assert_within_sigmas(state, truth)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_ranges_read_long_are_scaled_at_the_start(seed):
+    """Plaza1's UWB ranges read 7 % long: four beacons 13-62 m away, no compass. Taken as exact, they placed the
+    start 4.1 m off with a 0.77 m sigma; with their common scale solved for (significant here), the start is
+    within its sigmas and reports the scale. Exact ranges keep a scale of 1 (not significant)."""
+    beacons = np.array([[-30.0, 40.0], [12.0, 5.0], [-45.0, -20.0], [55.0, -30.0]])
+    started = {}
+    for scale in (1.07, 1.0):
+        ig = Ignition(beacons, np.zeros(4))
+        state, truth = feed(ig, 60.0, speed_mps=lambda t: 0.0 if t < 30.0 else 2.0, yaw_rate_radps=0.05, heard=beacons, compass=False,
+                            seed=seed, range_sigma_m=0.5, range_scale=scale, max_range_m=100.0)
+        assert state is not None
+        assert_within_sigmas(state, truth, k=3.0)
+        started[scale] = state
+    assert started[1.07].range_scale == pytest.approx(1.07, abs=0.02) and started[1.0].range_scale == 1.0
+    exact = Ignition(beacons, np.zeros(4), config=IgnitionConfig(range_scale_sigma=0.0))
+    state, truth = feed(exact, 60.0, speed_mps=lambda t: 0.0 if t < 30.0 else 2.0, yaw_rate_radps=0.05, heard=beacons, compass=False,
+                        seed=seed, range_sigma_m=0.5, range_scale=1.07, max_range_m=100.0)
+    e, n, _ = truth(state.t_s)
+    assert math.hypot(state.east_m - e, state.north_m - n) > 3.0 * state.position_sigma_m, "the case does not need the scale"
 
 
 def test_fixes_start_with_the_heading_of_their_track():
