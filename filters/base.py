@@ -42,7 +42,13 @@ the first seconds) and starts when it gives a
 :class:`~graphpos.ignition.StartState`; until then it outputs nothing. The
 papers start every filter from DGPS before the tunnel (song2016 §6): on the
 simulated paper drives that is the short ``gnss`` channel of the approach.
-The truth is never read.
+The truth is never read. A start from ranges may find them read long or short
+by a common scale (:attr:`graphpos.ignition.StartState.range_scale`, kept only
+when significant); the filter divides its ranges (and their 1-sigmas) by that
+scale from then on: a range calibration found in the drive, as a sensor
+profile would give one, which leaves the papers' state vectors as they are.
+Uncorrected, Plaza1's 7 %-long UWB ranges cost fusion-ekf 3.2 m RMS against
+0.36 m.
 
 Gaps, as in the factor graphs (:mod:`graphpos.graph.builder`): such a
 filter's odometry channels (``imu``, ``wheel``) are held for at most
@@ -179,6 +185,7 @@ class FilterEstimator(Estimator):
         self._n_out = 0
         self._t_grid0 = self._next_out
         self._started = self._ever_started = True
+        self._range_scale = start.range_scale if start is not None else 1.0
         if start is not None and "start" not in self.diagnostics:
             self.diagnostics["start"] = start.describe()
         elif start is not None:
@@ -390,7 +397,8 @@ class FilterEstimator(Estimator):
             return
         self.diagnostics["scans"] += 1
         idx = [self._tag_index[i] for i, k in zip(ids, keep) if k]
-        self._on_scan(t, self._tag_en[idx], d[keep], sigma[keep])
+        k = self._range_scale
+        self._on_scan(t, self._tag_en[idx], d[keep] / k, sigma[keep] / k)
 
     # -- fast offline loop ----------------------------------------------------
     def run(self, drive: Drive) -> Estimate:

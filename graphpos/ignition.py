@@ -117,9 +117,9 @@ class StartState:
 
     ``source`` is ``user``, ``fix`` (GNSS/RSU fixes, with the compass or the
     fix track for heading) or ``ranges``. ``range_scale``: the ranges'
-    common scale solved with the start when significant, else 1 (reported
-    only: a start-up figure to check a ranging calibration by; estimators
-    take a range scale from a sensor profile).
+    common scale solved with the start when significant, else 1 (the
+    filters divide their ranges by it from their start on,
+    :mod:`filters.base`; the graphs calibrate the ranges themselves).
     """
 
     t_s: float

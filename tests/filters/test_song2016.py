@@ -183,7 +183,10 @@ def _plaza1():
 @pytest.mark.parametrize("name", ["dr", "fusion-ekf", "two-level-ekf", pytest.param("fukf", marks=pytest.mark.slow)])
 def test_plaza_fallbacks(name):
     """Real data without accelerometers or compass: the fallbacks track the truth
-    (bounds about 1.5x what they achieve with the identity range model)."""
+    (bounds about 1.5x what they achieve with the identity range model). Plaza1's
+    UWB ranges read about 7 % long: the start from ranges finds it, and the filters
+    take it (3.2, 3.0 and 5.6 m for fusion-ekf, fukf, two-level-ekf with the ranges
+    taken as exact)."""
     drive = _plaza1()
     if name == "dr":
         # dead reckoning never corrects its start heading: a user gives the
@@ -196,6 +199,7 @@ def test_plaza_fallbacks(name):
         # comes from the direction of travel once it has moved (graphpos.ignition)
         est = ESTIMATORS[name]().run(drive.without_truth())
         assert est.diagnostics["start"]["source"] == "ranges" and est.t_s[0] - drive.start_s < 100.0
+        assert 1.04 < est.diagnostics["start"]["range_scale"] < 1.10
     err = position_errors(drive, est)
     assert np.isfinite(est.east_m).all() and len(est) > 0.99 * (drive.end_s - est.t_s[0]) * 10
-    assert rms(err) < {"dr": 3.0, "fusion-ekf": 5.0, "two-level-ekf": 9.0, "fukf": 5.0}[name], rms(err)
+    assert rms(err) < {"dr": 3.0, "fusion-ekf": 0.55, "two-level-ekf": 1.15, "fukf": 0.9}[name], rms(err)
