@@ -507,7 +507,7 @@ class GraphBatch(_GraphEstimator):
         first_estimate = first.run(drive)
         if not first.builder.started or not first.builder.odometry_records:
             return first_estimate.with_wall_time(time.perf_counter() - t0)
-        profile = fit_profile(first.builder, first.values, first.config, drive.name)
+        profile = fit_profile(first.builder, first.values, first.config, drive.name, redundancy=True)
         bearing = profile is not None and profile.range_bearing2_m_per_rad2 != 0.0
         del first  # its graph and values go before the second solve builds its own
         release_freed_memory()
