@@ -62,10 +62,12 @@ Lock-out: a filter whose state has drifted beyond its own covariance (an
 uncalibrated wheel scale the model's noise does not cover, a wrong start)
 gates away the ranges that would correct it, and drifts on for the rest of
 the drive (a 10 %-fast wheel at 12 m/s: 78 m RMS; the ``realistic``
-long-tunnel drives: 70-185 m). When half of its last :data:`LOCKOUT_RANGES`
-ranges failed the gate the track is lost, and a fresh ignition starts it
-again from the ranges, as after an odometry gap (same drives: 2.6 m, and
-5.9 m on long-tunnel seed 0); each one is listed in
+long-tunnel drives: 70-185 m; two-level-ekf on the ideal long-tunnel
+drives, 22 m/s: 12-23 m). When half of its last :data:`LOCKOUT_RANGES`
+ranges failed the gate, a fresh ignition is fed beside the filter, which
+runs on (its output does not stop), and the filter starts again from that
+ignition's state once it has one (same drives: 3.0 m; 6.6 m mean;
+1.6-2.1 m). Each one is listed in
 ``diagnostics["range_lockouts"]``. Not in the papers (they have no gate).
 """
 
@@ -115,6 +117,17 @@ _ODOMETRY_CHANNELS = ("imu", "wheel")
 #: gates a range at 0.1 %, and with 5 % gross outliers half of 20 ranges are
 #: gated with odds of 1e-8.
 LOCKOUT_RANGES = 20
+
+
+def _start_values(kind: str, columns: tuple, r: int) -> tuple | None:
+    """Row ``r`` of a non-RFID channel's pre-extracted columns (:meth:`FilterEstimator.run`) as ignition takes it."""
+    if kind == "imu":
+        return columns[1][r], columns[2][r], columns[3][r]
+    if kind in ("wheel", "compass"):
+        return (columns[1][r],)
+    if kind in _FIX_CHANNELS:
+        return columns[1][r]
+    return None
 
 
 class FilterEstimator(Estimator):
@@ -171,6 +184,8 @@ class FilterEstimator(Estimator):
         #: The record (an odometry gap or a lock-out) the next start restarts from, and the scans gated in a row.
         self._restart_record: dict[str, Any] | None = None
         self._gate_record: list[tuple[float, int, int]] = []
+        #: A locked-out filter's fresh ignition, fed while the filter runs on (None: not locked out).
+        self._rejoining: Ignition | None = None
         self._period = 1.0 / float(getattr(self.config, "output_rate_hz", 10.0))
         self._drive = drive
         self._standstill = StandstillGyroBias()
@@ -236,6 +251,7 @@ class FilterEstimator(Estimator):
             if self._pending:
                 self._flush_scan()
             self._started = False
+            self._rejoining = None
             self._lost_s = silent_since
         if self._lost_s is None or self._started:
             return True
@@ -253,7 +269,10 @@ class FilterEstimator(Estimator):
 
     def _pre_start(self, kind: str, t_s: float, values: tuple) -> None:
         """Feed one non-RFID reading to ignition (before the filter has started)."""
-        ig = self._ignition
+        self._ignite(self._feed(self._ignition, kind, t_s, values))
+
+    def _feed(self, ig: Ignition, kind: str, t_s: float, values: tuple) -> StartState | None:
+        """Feed one non-RFID reading (the columns of :data:`_PRE_START_COLUMNS`) to an ignition; its start when it has one."""
         if kind == "imu":
             state = ig.yaw_rate(t_s, values[2])
         elif kind == "wheel":
@@ -269,8 +288,8 @@ class FilterEstimator(Estimator):
             else:
                 state = ig.ranges(t_s, np.array([self._rsu_en[int(rsu_id)]]), np.array([r]), np.array([sigma]))
         else:
-            return
-        self._ignite(state)
+            return None
+        return state
 
     def _resolve_range_model(self, drive: Drive) -> dict:
         """The range model of each RFID reading field for this drive (built once per drive; :func:`graphpos.ranging.reading_models`)."""
@@ -323,6 +342,11 @@ class FilterEstimator(Estimator):
             self._standstill.speed(m.t_s, values["speed_mps"])
         elif m.channel == "imu":
             values = {**values, "yaw_rate_radps": self._standstill.yaw_rate(m.t_s, values["yaw_rate_radps"])}
+        if self._rejoining is not None and m.channel in _PRE_START_COLUMNS:
+            if self._pending:
+                self._flush_scan()  # the scan before this reading first, as run() applies them
+            if self._rejoining is not None:
+                self._rejoin(self._feed(self._rejoining, m.channel, m.t_s, tuple(values[c] for c in _PRE_START_COLUMNS[m.channel])))
         if self._started and m.channel not in self._own:
             return []  # read for ignition only
         if self._pending and (m.channel != "rfid" or (m.t_s, m.arrival_s) != self._pending_key):
@@ -421,11 +445,24 @@ class FilterEstimator(Estimator):
         k = self._range_scale
         used, gated = self.diagnostics["ranges_used"], self.diagnostics["ranges_gated"]
         self._on_scan(t, self._tag_en[idx], d[keep] / k, sigma[keep] / k)
-        if self.needs_start:
+        if self._rejoining is not None:
+            self._rejoin(self._rejoining.ranges(t_s, self._tag_en[idx], d[keep], sigma[keep]))
+        elif self.needs_start:
             self._watch_gate(t, self.diagnostics["ranges_used"] - used, self.diagnostics["ranges_gated"] - gated)
 
+    def _rejoin(self, state: StartState | None) -> None:
+        """A locked-out filter starts again from its fresh ignition's state (its output never stopped)."""
+        if state is None:
+            return
+        self._rejoining = None
+        self._range_scale = state.range_scale
+        self._gate_record = []
+        self.diagnostics["range_lockouts"][-1]["restart"] = state.describe()
+        self._init_filter(self._drive, state)
+
     def _watch_gate(self, t_s: float, used: int, gated: int) -> None:
-        """End the track when half of the last :data:`LOCKOUT_RANGES` ranges failed the gate; a fresh ignition starts it again."""
+        """Lock-out (module docstring): when half of the last :data:`LOCKOUT_RANGES` ranges failed the gate, a fresh
+        ignition is fed beside the filter, and the filter starts again from its state (:meth:`_rejoin`)."""
         record = self._gate_record
         record.append((t_s, used, gated))
         while len(record) > 1 and sum(u + g for _, u, g in record[1:]) >= LOCKOUT_RANGES:
@@ -433,10 +470,9 @@ class FilterEstimator(Estimator):
         n_used, n_gated = sum(u for _, u, _ in record), sum(g for _, _, g in record)
         if n_used + n_gated < LOCKOUT_RANGES or 2 * n_gated < n_used + n_gated:
             return
-        self._started = False
-        self._restart_record = {"from_s": record[0][0], "to_s": t_s, "ranges_gated": n_gated, "ranges": n_used + n_gated, "restart": None}
-        self.diagnostics["range_lockouts"].append(self._restart_record)
-        self._ignition = self._new_ignition(self._drive, None)
+        self.diagnostics["range_lockouts"].append({"from_s": record[0][0], "to_s": t_s, "ranges_gated": n_gated, "ranges": n_used + n_gated,
+                                                   "restart": None})
+        self._rejoining = self._new_ignition(self._drive, None)
 
     # -- fast offline loop ----------------------------------------------------
     def run(self, drive: Drive) -> Estimate:
@@ -492,20 +528,21 @@ class FilterEstimator(Estimator):
             elif kind == "imu":
                 rates = cols[c][3]
                 rates[r] = self._standstill.yaw_rate(cols[c][0][r], rates[r])
+            if kind != "rfid" and (self._rejoining is not None or not self._started):
+                values = _start_values(kind, cols[c], r)
+                if values is not None:
+                    if not self._started:
+                        self._pre_start(kind, cols[c][0][r], values)
+                        i += 1
+                        continue
+                    self._rejoin(self._feed(self._rejoining, kind, cols[c][0][r], values))
+                elif not self._started:
+                    i += 1
+                    continue
             if self._started and kind not in self._own:
                 i += 1
                 continue  # read for ignition only
-            if not self._started and kind != "rfid":
-                if kind == "imu":
-                    ts, ax, ay, wz = cols[c]
-                    self._pre_start(kind, ts[r], (ax[r], ay[r], wz[r]))
-                elif kind in ("wheel", "compass"):
-                    ts, v = cols[c]
-                    self._pre_start(kind, ts[r], (v[r],))
-                elif kind in _FIX_CHANNELS:
-                    ts, vals = cols[c]
-                    self._pre_start(kind, ts[r], vals[r])
-            elif kind == "imu":
+            if kind == "imu":
                 ts, ax, ay, wz = cols[c]
                 t = self._advance(ts[r])
                 self._on_imu(t, ax[r], ay[r], wz[r])
