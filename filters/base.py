@@ -112,7 +112,7 @@ _BRIDGED_FIELDS = {"imu": ("accel_x_mps2", "accel_y_mps2")}
 #: than :data:`graphpos.ignition.MAX_ODOMETRY_GAP_S` ends its track (module docstring).
 _ODOMETRY_CHANNELS = ("imu", "wheel")
 
-#: A filter's track ends when at least half of its last this many usable
+#: A filter is locked out when at least half of its last this many usable
 #: ranges (whole scans) failed the gate (module docstring). A consistent filter
 #: gates a range at 0.1 %, and with 5 % gross outliers half of 20 ranges are
 #: gated with odds of 1e-8.
@@ -181,8 +181,7 @@ class FilterEstimator(Estimator):
         self._pending: list[dict[str, float]] = []
         self.diagnostics: dict[str, Any] = {"scans": 0, "ranges_used": 0, "ranges_gated": 0, "ranges_unusable": 0, "late_scans": 0,
                                             "non_finite": {}, "odometry_gaps": [], "range_lockouts": []}
-        #: The record (an odometry gap or a lock-out) the next start restarts from, and the scans gated in a row.
-        self._restart_record: dict[str, Any] | None = None
+        #: (time, ranges used, ranges gated) of the latest scans, at least LOCKOUT_RANGES ranges (:meth:`_watch_gate`).
         self._gate_record: list[tuple[float, int, int]] = []
         #: A locked-out filter's fresh ignition, fed while the filter runs on (None: not locked out).
         self._rejoining: Ignition | None = None
@@ -223,8 +222,8 @@ class FilterEstimator(Estimator):
         self._gate_record = []
         if start is not None and "start" not in self.diagnostics:
             self.diagnostics["start"] = start.describe()
-        elif start is not None and self._restart_record is not None:
-            self._restart_record["restart"] = start.describe()
+        elif start is not None:
+            self.diagnostics["odometry_gaps"][-1]["restart"] = start.describe()
         self._init_filter(self._drive, start)
 
     def _follow_odometry(self, kind: str, t_s: float) -> bool:
@@ -257,8 +256,7 @@ class FilterEstimator(Estimator):
             return True
         if t_s - self._oldest_odometry_s > MAX_ODOMETRY_GAP_S:
             return False
-        self._restart_record = {"from_s": self._lost_s, "to_s": t_s, "restart": None}
-        self.diagnostics["odometry_gaps"].append(self._restart_record)
+        self.diagnostics["odometry_gaps"].append({"from_s": self._lost_s, "to_s": t_s, "restart": None})
         self._ignition = self._new_ignition(self._drive, None)
         self._lost_s = None
         return True
