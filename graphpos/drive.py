@@ -482,6 +482,39 @@ class Measurement(NamedTuple):
     values: dict[str, float]
 
 
+@dataclass(frozen=True, eq=False)
+class RowRun:
+    """Consecutive rows of a merged feed (:meth:`Drive.feed`) from a few channels, as columns of Python floats.
+
+    Attributes
+    ----------
+    names : list of str
+        The feed's channels; ``code`` indexes them.
+    code : list of int
+        Each row's channel.
+    key_s : list of float
+        Each row's merge time: its arrival (``by="arrival"``) or its ``t_s``.
+    columns : dict of str to list of float
+        Every column of the run's channels, ``t_s`` included; NaN on the
+        rows of a channel without that column. Python floats: a loop over
+        rows reads them without a NumPy scalar each.
+    """
+
+    names: list[str]
+    code: list[int]
+    key_s: list[float]
+    columns: dict[str, list[float]]
+    _tables: list = field(repr=False)
+    _row: list[int] = field(repr=False)
+
+    def __len__(self) -> int:
+        return len(self.code)
+
+    def measurement(self, i: int) -> Measurement:
+        """Row ``i`` as the :class:`Measurement` :meth:`Drive.measurements` gives."""
+        return next(_rows_as_measurements(self._tables, [self.code[i]], [self._row[i]]))
+
+
 # ---------------------------------------------------------------------------
 # The drive
 # ---------------------------------------------------------------------------
@@ -638,6 +671,16 @@ class Drive:
             Merge on arrival time (what a live system sees; filters) or on
             measurement time.
         """
+        yield from self.feed(channels, by)
+
+    def feed(self, channels: tuple[str, ...] | list[str], by: str = "arrival", runs_of: tuple[str, ...] = ()) -> Iterator[Measurement | RowRun]:
+        """The merge of :meth:`measurements`, with consecutive rows of the ``runs_of`` channels as one :class:`RowRun`.
+
+        An offline estimator takes the high-rate channels (IMU, wheel) of a
+        recorded drive as arrays between the readings that interrupt them,
+        instead of one :class:`Measurement` at a time; the order is the
+        same.
+        """
         names = [c for c in channels if self.has(c)]
         if not names:
             return
@@ -648,16 +691,45 @@ class Drive:
             keys.append(key)
             codes.append(np.full(len(ch), code, dtype=np.int64))
             rows.append(np.arange(len(ch)))
-        key = np.concatenate(keys)
-        code = np.concatenate(codes)
-        row = np.concatenate(rows)
-        order = np.lexsort((row, code, key))
-        cols = [
+        order = np.lexsort((np.concatenate(rows), np.concatenate(codes), np.concatenate(keys)))
+        key = np.concatenate(keys)[order]
+        code = np.concatenate(codes)[order]
+        row = np.concatenate(rows)[order]
+        tables = [
             (name, list(self.channels[name].columns.keys()), np.column_stack(list(self.channels[name].columns.values())).tolist())
             for name in names
         ]
-        for c, r in zip(code[order].tolist(), row[order].tolist()):  # Python ints: no numpy scalar per row
-            name, col_names, table = cols[c]
-            values = dict(zip(col_names, table[r]))
-            t = values["t_s"]
-            yield Measurement(name, t, values.get("arrival_s", t), values)
+        batched = np.isin(code, [i for i, name in enumerate(names) if name in runs_of])
+        if not batched.any():
+            yield from _rows_as_measurements(tables, code.tolist(), row.tolist())
+            return
+        columns = {c: v.tolist() for c, v in _merged_columns(self, names, runs_of, code, row).items()}
+        edges = [0, *(np.flatnonzero(np.diff(batched)) + 1).tolist(), len(code)]
+        code, row, key = code.tolist(), row.tolist(), key.tolist()
+        for a, b in zip(edges[:-1], edges[1:]):
+            if batched[a]:
+                yield RowRun(names, code[a:b], key[a:b], {c: v[a:b] for c, v in columns.items()}, tables, row[a:b])
+            else:
+                yield from _rows_as_measurements(tables, code[a:b], row[a:b])
+
+
+def _rows_as_measurements(tables: list, codes: list[int], rows: list[int]) -> Iterator[Measurement]:
+    """Measurements of rows given by channel code and row number; ``tables``: (name, column names, rows as lists) per code."""
+    for c, r in zip(codes, rows):
+        name, col_names, table = tables[c]
+        values = dict(zip(col_names, table[r]))
+        t = values["t_s"]
+        yield Measurement(name, t, values.get("arrival_s", t), values)
+
+
+def _merged_columns(drive: Drive, names: list[str], channels: tuple[str, ...], code: np.ndarray, row: np.ndarray) -> dict[str, np.ndarray]:
+    """The columns of ``channels`` over a merge (``code``, ``row``), NaN where a row is of another channel."""
+    columns: dict[str, np.ndarray] = {}
+    for i, name in enumerate(names):
+        if name not in channels:
+            continue
+        at = code == i
+        for column, values in drive.channels[name].columns.items():
+            merged = columns.setdefault(column, np.full(len(code), np.nan))
+            merged[at] = values[row[at]]
+    return columns

@@ -59,7 +59,7 @@ import numpy as np
 from gtsam.symbol_shorthand import L, R
 
 from filters.models.angles import wrap_angle
-from graphpos.drive import Channel, Drive, Measurement
+from graphpos.drive import Channel, Drive, Measurement, RowRun
 from graphpos.graph.config import GraphConfig
 from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState
 from graphpos.profile import SensorProfile
@@ -85,6 +85,7 @@ START_MAX_YAW_SIGMA_RAD = math.radians(15.0)
 #: The odometry sensors: (channel, field) pairs whose silence ends the track.
 ODOMETRY_SENSORS = (("imu", "yaw_rate_radps"), ("wheel", "speed_mps"))
 _ODOMETRY_FIELD = dict(ODOMETRY_SENSORS)  # one odometry field per channel
+_IMU, _WHEEL = ODOMETRY_SENSORS
 #: The fields each absolute channel's factors read (checked for finite values).
 ABSOLUTE_FIELDS = {"compass": ("yaw_rad",), "gnss": ("east_m", "north_m", "sigma_m"), "rsu": ("sigma_m",)}
 
@@ -368,35 +369,79 @@ class GraphBuilder:
             self._take_imu(m)
             return []
         if m.channel == "wheel":
-            if self.tracking:
-                self.odometry.advance(m.t_s)
-            self.standstill.speed(m.t_s, m.values["speed_mps"])
-            if math.isfinite(m.values["speed_mps"]):
-                speed = m.values["speed_mps"] / self.corrections.wheel_scale
-                self.odometry.set_speed(speed)
-                if self.tracking and not self.anchored:
-                    self._ignite(self.ignition.speed(m.t_s, speed))
+            self._wheel_sample(m.t_s, m.values["speed_mps"])
             return []
         entry = self._entry(m)
         return [] if entry is None else self._place(m, entry)
 
     def _take_imu(self, m: Measurement) -> None:
         v = m.values
+        finite_accel = self._preintegrating and all([self._finite(m, "accel_x_mps2"), self._finite(m, "accel_y_mps2")])
+        self._imu_sample(m.t_s, v["yaw_rate_radps"], v["accel_x_mps2"] if finite_accel else None, v["accel_y_mps2"] if finite_accel else None)
+
+    def _imu_sample(self, t_s: float, yaw_rate_radps: float, accel_x_mps2: float | None, accel_y_mps2: float | None) -> None:
+        """One IMU sample's step: the held odometry advanced to it, then its yaw rate (if finite) and accelerations (if given) held."""
         if self.tracking:
-            self.odometry.advance(m.t_s)
+            self.odometry.advance(t_s)
             if self._preintegrating:
-                self._integrate_imu(m.t_s)
-        if math.isfinite(v["yaw_rate_radps"]):
-            raw = self.standstill.yaw_rate(m.t_s, v["yaw_rate_radps"])
+                self._integrate_imu(t_s)
+        if math.isfinite(yaw_rate_radps):
+            raw = self.standstill.yaw_rate(t_s, yaw_rate_radps)
             yaw_rate = (raw - self.corrections.gyro_bias_radps) / self.corrections.yaw_rate_scale
             self.odometry.set_yaw_rate(yaw_rate)
             if self._preintegrating:
                 self._gyro_radps = np.array([0.0, 0.0, yaw_rate])
             if self.tracking and not self.anchored:
-                self._ignite(self.ignition.yaw_rate(m.t_s, yaw_rate))
-        if self._preintegrating and all([self._finite(m, "accel_x_mps2"), self._finite(m, "accel_y_mps2")]):
-            self._accel_mps2 = np.array([v["accel_x_mps2"], v["accel_y_mps2"], GRAVITY_MPS2])
-            self._accel_t = m.t_s
+                self._ignite(self.ignition.yaw_rate(t_s, yaw_rate))
+        if accel_x_mps2 is not None:
+            self._accel_mps2 = np.array([accel_x_mps2, accel_y_mps2, GRAVITY_MPS2])
+            self._accel_t = t_s
+
+    def _wheel_sample(self, t_s: float, speed_mps: float) -> None:
+        """One wheel sample's step: the held odometry advanced to it, then its speed (if finite) held."""
+        if self.tracking:
+            self.odometry.advance(t_s)
+        self.standstill.speed(t_s, speed_mps)
+        if math.isfinite(speed_mps):
+            speed = speed_mps / self.corrections.wheel_scale
+            self.odometry.set_speed(speed)
+            if self.tracking and not self.anchored:
+                self._ignite(self.ignition.speed(t_s, speed))
+
+    def take_odometry(self, run: RowRun, i: int) -> int:
+        """Take IMU and wheel rows of a recorded drive from row ``i`` as :meth:`add` would, up to the first that may close a keyframe.
+
+        Returns the first row not taken: ``i`` itself when row ``i`` needs
+        :meth:`add` (no track, a keyframe to close, a non-finite field).
+        The rows taken close, begin and end nothing, so each goes straight
+        to the sample's own step (:meth:`_imu_sample`, :meth:`_wheel_sample`),
+        without a :class:`Measurement` and its checks: the same graph as
+        the online loop, a fraction of the Python (issue 19, item 1).
+        """
+        if not self.tracking:
+            return i
+        next_s = self.keyframe_time(self.last_keyframe + 1)
+        imu_code = run.names.index("imu") if "imu" in run.names else -1
+        col = run.columns
+        key, t, code = run.key_s, col["t_s"], run.code
+        yaw_rate, speed = col.get("yaw_rate_radps"), col.get("speed_mps")
+        accel_x, accel_y = (col["accel_x_mps2"], col["accel_y_mps2"]) if self._preintegrating else (None, None)
+        last = self._last_sample_s
+        isfinite = math.isfinite
+        for j in range(i, len(code)):
+            if next_s < key[j] - 1e-9:
+                return j
+            if code[j] == imu_code:
+                if not isfinite(yaw_rate[j]) or (accel_x is not None and not (isfinite(accel_x[j]) and isfinite(accel_y[j]))):
+                    return j
+                self._imu_sample(t[j], yaw_rate[j], None if accel_x is None else accel_x[j], None if accel_y is None else accel_y[j])
+                last[_IMU] = t[j]
+            else:
+                if not isfinite(speed[j]):
+                    return j
+                self._wheel_sample(t[j], speed[j])
+                last[_WHEEL] = t[j]
+        return len(code)
 
     def _entry(self, m: Measurement) -> tuple | None:
         """An absolute reading as a factor entry; None (counted) when it cannot give one."""

@@ -26,6 +26,7 @@ from __future__ import annotations
 import collections
 import dataclasses
 import math
+import time
 from typing import Any
 
 import gtsam
@@ -35,7 +36,7 @@ from graphpos.drive import Drive, Measurement
 from graphpos.errors import ConfigError, EstimationError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
-from graphpos.graph.builder import GraphBuilder, Increment
+from graphpos.graph.builder import ODOMETRY_SENSORS, GraphBuilder, Increment
 from graphpos.graph.config import GraphConfig
 from graphpos.graph.models import COMPASS_BIAS_KEY, KeyframeState, make_model
 from graphpos.graph.smoothers import MARGINALISE_EVERY_S, FixedLagSmoother, ValuesSource, WindowedIsam2Smoother, gtsam_error
@@ -97,6 +98,28 @@ class _GraphEstimator(Estimator):
     def process(self, measurement: Measurement) -> list[OutputRow]:
         return self._apply(self.builder.add(measurement))
 
+    def run(self, drive: Drive) -> Estimate:
+        """The loop of :meth:`Estimator.run`, with the odometry rows between keyframes taken as arrays.
+
+        Each run of IMU and wheel rows goes to :meth:`process` one row at
+        a time only where a row may close a keyframe (or needs the
+        row-by-row path); the rows between are taken at once
+        (:meth:`GraphBuilder.take_odometry`): the same graph and output as
+        the online loop, without Python per sample (issue 19, item 1).
+        """
+        drive = self.prepare(drive)
+        t0 = time.perf_counter()
+        self.start(drive)
+        for item in drive.feed(self.channels_used(drive), by=self.merge_by, runs_of=tuple(c for c, _ in ODOMETRY_SENSORS)):
+            if isinstance(item, Measurement):
+                self.process(item)
+                continue
+            i = 0
+            while i < len(item):
+                self.process(item.measurement(i))
+                i = self.builder.take_odometry(item, i + 1)
+        return self.finish().with_wall_time(time.perf_counter() - t0)
+
     def _apply(self, increments: list[Increment]) -> list[OutputRow]:
         """Update the smoother with each released (or late) increment; a row per new keyframe once started (none before)."""
         out = []
@@ -118,8 +141,6 @@ class _GraphEstimator(Estimator):
         return mode == "estimate" or (mode == "auto" and self.range_model is None and ranges)
 
     def _update(self, inc: Increment) -> None:
-        import time
-
         t = time.perf_counter()
         try:
             self.smoother.update(inc.factors, inc.values, inc.timestamps, ANCHOR_ITERATIONS if inc.anchoring else 0)
@@ -494,8 +515,6 @@ class GraphBatch(_GraphEstimator):
         """
         if self.profile is not None or not self.config.self_calibrate:
             return super().run(drive)
-        import time
-
         from graphpos.graph.calibration import fit_profile, fit_range_terms
 
         c = self.config

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from graphpos.drive import CHANNEL_SPECS, Channel, Drive, RsuMap, TagMap, Window
+from graphpos.drive import CHANNEL_SPECS, Channel, Drive, Measurement, RowRun, RsuMap, TagMap, Window
 from graphpos.errors import DriveError
 
 
@@ -128,6 +128,26 @@ def test_measurements_merge_by_arrival_with_channel_tie_break():
     by_time = [(m.channel, m.t_s) for m in drive.measurements(["imu", "rfid"], by="t")]
     assert by_time == [("imu", 0.0), ("rfid", 0.0), ("rfid", 0.5), ("imu", 1.0), ("imu", 2.0)]
     assert not drive.has_accelerometers
+
+
+def test_feed_gives_runs_of_the_merge_as_columns():
+    imu = Channel("imu", {"t_s": [0.0, 1.0, 2.0, 3.0], "yaw_rate_radps": [0.1, 0.2, 0.3, 0.4]})
+    wheel = Channel("wheel", {"t_s": [0.5, 2.5], "speed_mps": [5.0, 6.0]})
+    rfid = Channel("rfid", {"t_s": [0.0, 0.5], "tag_id": [1, 2], "rss": [1, 2], "arrival_s": [1.0, 2.2]})
+    drive = Drive("d", {"imu": imu, "wheel": wheel, "rfid": rfid}, tags=_tags())
+    for by in ("arrival", "t"):
+        items = list(drive.feed(["imu", "wheel", "rfid"], by=by, runs_of=("imu", "wheel")))
+        runs = [item for item in items if isinstance(item, RowRun)]
+        flat = [m for item in items for m in ([item] if isinstance(item, Measurement) else [item.measurement(i) for i in range(len(item))])]
+        assert list(map(repr, flat)) == list(map(repr, drive.measurements(["imu", "wheel", "rfid"], by=by)))  # repr: NaN fields
+        assert all(m.channel == "rfid" for m in items if isinstance(m, Measurement))
+        assert sum(map(len, runs)) == 6
+        for run in runs:
+            assert run.key_s == [m.arrival_s if by == "arrival" else m.t_s for m in (run.measurement(i) for i in range(len(run)))]
+    first = next(item for item in drive.feed(["imu", "wheel", "rfid"], runs_of=("imu", "wheel")) if isinstance(item, RowRun))
+    assert [first.names[c] for c in first.code] == ["imu", "wheel", "imu"]
+    np.testing.assert_array_equal(first.columns["speed_mps"], [np.nan, 5.0, np.nan])
+    np.testing.assert_array_equal(first.columns["yaw_rate_radps"], [0.1, np.nan, 0.2])
 
 
 def test_window_bounds_and_drive_duration():
