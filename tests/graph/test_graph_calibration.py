@@ -29,6 +29,44 @@ def test_scale_recovered_on_a_long_reading_radio():
     assert rms(position_errors(drive, calibrated)) < 0.85 * rms(position_errors(drive, plain))
 
 
+@pytest.mark.parametrize("minimum", [0.93, 1.0, 1.07, 1.2])
+def test_profile_minimum_finds_the_vertex_in_few_solves(minimum):
+    """The successive-parabola search (issue 19: it replaced a 14-solve Brent search) on a quartic-tailed bowl."""
+    from graphpos.graph.calibration import _profile_minimum
+
+    solves = []
+
+    def at(x, warm):
+        solves.append(x)
+        d = x - minimum
+        return 100 * d**2 + 300 * d**4 + 5.0, None
+
+    vertex, curvature, _ = _profile_minimum(at, 1.0, 0.01, (0.8, 1.25), 6, None)
+    assert vertex == pytest.approx(minimum, abs=2e-4)
+    assert curvature == pytest.approx(200, rel=0.1)
+    assert len(solves) <= 3 * 4 + 1
+    assert _profile_minimum(lambda x, w: (-((x - 1.0) ** 2), None), 1.0, 0.01, (0.8, 1.25), 6, None) is None  # not convex
+
+
+def test_range_scale_search_agrees_with_a_fine_bracketing_search():
+    from scipy.optimize import minimize_scalar
+
+    from graphpos.graph.calibration import estimate_range_scale
+    from graphpos.graph.estimators import optimise
+
+    drive = synthetic_drive(40, seed=13, turn_radps=0.05, range_scale=1.07)
+    est = ESTIMATORS["graph-batch"](GraphConfig(parameterisation="planar", self_calibrate=False, range_scale="off", **SYNTHETIC_MODEL),
+                                    range_model=LinearCalibration(sigma0_m=0.3))
+    est.run(drive.without_truth())
+    b, config = est.builder, est.config
+    scale, values = estimate_range_scale(b, est.values, config, "test")
+    assert b.diagnostics["range_scale_solves"] <= 10
+    fine = minimize_scalar(lambda x: b.graph(x).error(optimise(b.graph(x), values, config, "test")), bounds=(1.0, 1.15), method="bounded",
+                           options={"xatol": 1e-5})
+    assert scale == pytest.approx(fine.x, abs=1e-3)
+    assert scale == pytest.approx(1.07, abs=0.01)
+
+
 def test_wheel_scale_recovered_on_simulated_drives():
     """graph-batch self-calibrates the sim's wheel scale error (1 % 1-sigma) and gains by it.
 
