@@ -26,10 +26,16 @@ What is recorded
   ``calculateBestEstimate`` and ``marginalCovariance``, each with a copy of
   its inputs and its result;
 - every :func:`graphpos.graph.estimators.optimise` (Levenberg-Marquardt plus
-  its error check) and :func:`~graphpos.graph.estimators.marginal_covariances`
-  call, through every module binding of those names
+  its error check) call, through every module binding of the name
   (:mod:`graphpos.graph.estimators`, :mod:`graphpos.graph.ranges`;
-  :mod:`graphpos.graph.calibration` imports ``optimise`` at call time).
+  :mod:`graphpos.graph.calibration` imports it at call time);
+- every ``gtsam.Marginals`` built (a copy of its graph and values: the
+  factorisation) and every ``marginalCovariance``,
+  ``jointMarginalCovariance`` (its full matrix) and
+  ``deleteCachedShortcuts`` call on it: graph-batch's covariances
+  (:func:`~graphpos.graph.estimators.marginal_covariances`) and the joint
+  marginals of its heading-noise fit
+  (:func:`~graphpos.graph.calibration.turn_redundancy`).
 
 Not recorded (not GTSAM solving): factor and graph building, reads of plain
 ``gtsam.Values`` (``ValuesSource``), ``getFactorsUnsafe``, and the
@@ -182,12 +188,46 @@ class _Proxy:
         return recorded
 
 
+class _MarginalsProxy:
+    """Stands in for a ``gtsam.Marginals`` and records its construction and the covariances asked of it."""
+
+    def __init__(self, rec: "Recorder", real: type, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values):
+        c = time.process_time()
+        inputs = (_copy_graph(graph), gtsam.Values(values))
+        g = time.process_time()
+        self._obj = real(graph, values)
+        e = time.process_time()
+        self._rec, self._mid = rec, len(rec.marginals)
+        rec.marginals.append(None)
+        rec.calls.append(("marginals", self._mid, None, inputs, None))
+        rec.split.gtsam_s += e - g
+        rec.split.recording_s += (g - c) + (time.process_time() - e)
+
+    def __getattr__(self, name: str):
+        if name not in ("marginalCovariance", "jointMarginalCovariance", "deleteCachedShortcuts"):
+            raise NotImplementedError(f"gtsam_replay: Marginals.{name} is not recorded")
+        attr = getattr(self._obj, name)
+
+        def recorded(*args):
+            g = time.process_time()
+            out = attr(*args)
+            kept = out.fullMatrix() if name == "jointMarginalCovariance" else out
+            c = time.process_time()
+            self._rec.split.gtsam_s += c - g
+            self._rec.calls.append(("marginals-call", self._mid, None, (name, *args), _copy_result(kept)))
+            self._rec.split.recording_s += time.process_time() - c
+            return out
+
+        return recorded
+
+
 class Recorder:
     """Context manager: record the GTSAM solving calls of the estimators run inside it (see the module docstring)."""
 
     def __init__(self):
         self.calls: list[tuple] = []
         self.smoothers: list[tuple] = []  # (kind, model_name, lag_s) by smoother id
+        self.marginals: list[None] = []  # one entry per gtsam.Marginals built (its id)
         self.split = Split()
         self._undo: list[tuple[Any, str, Any]] = []
 
@@ -209,7 +249,7 @@ class Recorder:
             rec.calls.append(("new", sid, None, None, None))
             obj.smoother = _Proxy(rec, sid, "fixed-lag", obj.smoother)
 
-        optimise, marginals = estimators.optimise, estimators.marginal_covariances
+        optimise, real_marginals = estimators.optimise, gtsam.Marginals
 
         def recorded_optimise(graph, initial, config, what, relative_tol=1e-4):
             c = time.process_time()
@@ -218,17 +258,6 @@ class Recorder:
             out = optimise(graph, initial, config, what, relative_tol)
             e = time.process_time()
             rec.calls.append(("lm", None, None, inputs, gtsam.Values(out)))
-            rec.split.gtsam_s += e - g
-            rec.split.recording_s += (g - c) + (time.process_time() - e)
-            return out
-
-        def recorded_marginals(graph, values, keys, what):
-            c = time.process_time()
-            inputs = (_copy_graph(graph), gtsam.Values(values), list(keys))
-            g = time.process_time()
-            out = marginals(graph, values, keys, what)
-            e = time.process_time()
-            rec.calls.append(("marginals", None, None, inputs, [m.copy() for m in out]))
             rec.split.gtsam_s += e - g
             rec.split.recording_s += (g - c) + (time.process_time() - e)
             return out
@@ -245,7 +274,7 @@ class Recorder:
         self._patch(smoothers.FixedLagSmoother, "__init__", fixed_lag_init)
         for module in (estimators, ranges):
             self._patch(module, "optimise", recorded_optimise)
-            self._patch(module, "marginal_covariances", recorded_marginals)
+        self._patch(gtsam, "Marginals", lambda graph, values: _MarginalsProxy(rec, real_marginals, graph, values))
         self._patch(builder.GraphBuilder, "add", timed(builder.GraphBuilder.add, "builder_add_s"))
         self._patch(builder.GraphBuilder, "flush", timed(builder.GraphBuilder.flush, "builder_add_s"))
         self._patch(builder.GraphBuilder, "graph", timed(builder.GraphBuilder.graph, "builder_graph_s"))
@@ -262,7 +291,7 @@ class Recorder:
     def counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
         for kind, _, target, args, _ in self.calls:
-            label = kind if kind != "call" else args[0]
+            label = args[0] if kind in ("call", "marginals-call") else kind
             out[label] = out.get(label, 0) + 1
         return out
 
@@ -271,6 +300,7 @@ class Recorder:
         from graphpos.graph.smoothers import isam2_params
 
         objects: list[Any] = [None] * len(self.smoothers)
+        marginals: list[Any] = [None] * len(self.marginals)
         outputs: list[Any] = []
         c0 = time.process_time()
         for kind, sid, target, args, _ in self.calls:
@@ -295,9 +325,12 @@ class Recorder:
                 graph.error(result)  # optimise's divergence check
                 outputs.append(result)
             elif kind == "marginals":
-                graph, values, keys = args
-                m = gtsam.Marginals(graph, values)
-                outputs.append([m.marginalCovariance(key) for key in keys])
+                graph, values = args
+                marginals[sid] = gtsam.Marginals(graph, values)
+                outputs.append(None)
+            elif kind == "marginals-call":
+                out = getattr(marginals[sid], args[0])(*args[1:])
+                outputs.append(out.fullMatrix() if args[0] == "jointMarginalCovariance" else out)
             else:
                 raise AssertionError(kind)
         cpu_s = time.process_time() - c0
@@ -318,7 +351,7 @@ class Replay:
                 continue
             d = _difference(recorded, out)
             if not d <= worst:  # NaN counts as worst
-                label = args[0] if kind == "call" else kind
+                label = args[0] if kind in ("call", "marginals-call") else kind
                 worst, where = d, f"call {i} ({label})"
         return worst, where
 
