@@ -16,8 +16,9 @@ Online use is the same object fed one measurement at a time::
     estimate = est.finish()
 
 ``run`` is exactly that loop over ``drive.measurements(...)`` in arrival
-order (an estimator may override ``run`` with a faster equivalent, which its
-tests must show gives the same result).
+order (an estimator may override ``run``, or the loop alone,
+``_process_recorded``, with a faster equivalent, which its tests must show
+gives the same result).
 """
 
 from __future__ import annotations
@@ -173,7 +174,12 @@ class Estimator(ABC):
         drive = self.prepare(drive)
         t0 = time.perf_counter()
         self.start(drive)
-        for m in drive.measurements(self.channels_used(drive), by=self.merge_by):
-            self.process(m)
+        self._process_recorded(drive)
         est = self.finish()
         return est.with_wall_time(time.perf_counter() - t0)
+
+    def _process_recorded(self, drive: Drive) -> None:
+        """Everything of a recorded drive through :meth:`process`, in :attr:`merge_by` order (``run`` between
+        ``start`` and ``finish``); an estimator may take it faster, with the same result (tested)."""
+        for m in drive.measurements(self.channels_used(drive), by=self.merge_by):
+            self.process(m)

@@ -98,8 +98,8 @@ class _GraphEstimator(Estimator):
     def process(self, measurement: Measurement) -> list[OutputRow]:
         return self._apply(self.builder.add(measurement))
 
-    def run(self, drive: Drive) -> Estimate:
-        """The loop of :meth:`Estimator.run`, with the odometry rows between keyframes taken as arrays.
+    def _process_recorded(self, drive: Drive) -> None:
+        """:meth:`Estimator._process_recorded` with the odometry rows between keyframes taken as arrays.
 
         Each run of IMU and wheel rows goes to :meth:`process` one row at
         a time only where a row may close a keyframe (or needs the
@@ -107,9 +107,6 @@ class _GraphEstimator(Estimator):
         (:meth:`GraphBuilder.take_odometry`): the same graph and output as
         the online loop, without Python per sample (issue 19, item 1).
         """
-        drive = self.prepare(drive)
-        t0 = time.perf_counter()
-        self.start(drive)
         for item in drive.feed(self.channels_used(drive), by=self.merge_by, runs_of=tuple(c for c, _ in ODOMETRY_SENSORS)):
             if isinstance(item, Measurement):
                 self.process(item)
@@ -118,7 +115,6 @@ class _GraphEstimator(Estimator):
             while i < len(item):
                 self.process(item.measurement(i))
                 i = self.builder.take_odometry(item, i + 1)
-        return self.finish().with_wall_time(time.perf_counter() - t0)
 
     def _apply(self, increments: list[Increment]) -> list[OutputRow]:
         """Update the smoother with each released (or late) increment; a row per new keyframe once started (none before)."""
