@@ -2,7 +2,9 @@
 
 Simulates every table the profile is meant to reproduce (song2016 Tables 3-4,
 song2016b Table I, song2014 Tables 4-6: 47 published RMS figures) with
-``profile = "paper"`` for the given seeds, runs each row's estimator as
+``profile = "paper"`` for the given seeds (and the RFID-only Tables 2 of
+song2016 and song2014, whose orderings are checked but whose magnitudes are
+not targets), runs each row's estimator as
 ``graphpos reproduce`` does (:func:`eval.execution.run_job`: the estimator
 gets the drive without its truth, the score comes from the full drive), and
 prints per figure the published RMS, ours (mean +- STD over the seeds), the
@@ -47,6 +49,10 @@ from eval.experiments import LIU2016_BOUND_M, Experiment, experiments  # noqa: E
 TABLES = ("song2016-table3", *(f"song2016-table4/{p}" for p in (
     "accel", "decel", "constant", "accel-variable", "decel-variable", "lane-change-straight", "lane-change-curve")),
     "song2016b-tableI", "song2014-table4-whole", "song2014-table4-tunnel", "song2014-table5", "song2014-table6")
+#: Tables whose orderings must hold on the profile too but whose magnitudes
+#: are not among the 47 targets (issue 17 names the tables above; issue 20
+#: asks every other table's ordering to hold): the RFID-only Tables 2.
+ORDERING_ONLY = ("song2016-table2", "song2014-table2")
 #: Within +-30 % of the published RMS.
 TOLERANCE = 0.30
 #: The target: at least this fraction of the figures matched.
@@ -62,6 +68,8 @@ class Figure:
     label: str
     published_rms: float
     ours: list[float]
+    #: False for a figure of an :data:`ORDERING_ONLY` table.
+    counted: bool = True
 
     @property
     def mean(self) -> float:
@@ -124,7 +132,7 @@ _ONLY: tuple[str, ...] | None = None
 
 def _tables() -> list[Experiment]:
     by_key = {e.key: e for e in experiments()}
-    return [by_key[k] for k in TABLES if _ONLY is None or k.startswith(_ONLY)]
+    return [by_key[k] for k in (*TABLES, *ORDERING_ONLY) if _ONLY is None or k.startswith(_ONLY)]
 
 
 def run_tables(seeds: tuple[int, ...], profile: str = "paper", extra: dict[str, Any] | None = None,
@@ -147,7 +155,8 @@ def run_tables(seeds: tuple[int, ...], profile: str = "paper", extra: dict[str, 
                     cache[key] = res.metrics if res.ok else None
                 m = cache[key]
                 ours.append(m["windows"][exp.window]["position"]["rms_m"] if m else float("nan"))
-            figures.append(Figure(exp.key, row.estimator, row.label, row.published[1], ours))
+            figures.append(Figure(exp.key, row.estimator, row.label, row.published[1], ours,
+                                  counted=exp.key not in ORDERING_ONLY))
         if progress:
             print(f"  [{time.perf_counter() - t0:6.0f} s] {exp.key}", file=sys.stderr, flush=True)
     orderings = []
@@ -183,15 +192,17 @@ def report(figures: list[Figure], orderings: list[Ordering], seeds: tuple[int, .
     print(f"profile {profile!r}, seeds {','.join(map(str, seeds))}: RMS in metres, ours = mean +- STD over seeds")
     if brief:  # one line per table: estimator ours/paper ratio (* = missed)
         for table in dict.fromkeys(f.table for f in figures):
-            print(f"{table:<30} " + "  ".join(f"{f.estimator} {f.mean:.2f}/{f.published_rms:.2f}{'' if f.matched else '*'}"
+            print(f"{table:<30} " + "  ".join(f"{f.estimator} {f.mean:.2f}/{f.published_rms:.2f}{'' if f.matched or not f.counted else '*'}"
                                                for f in figures if f.table == table))
     else:
         print(f"{'table':<34} {'estimator':<14} {'paper':>6} {'ours':>13} {'ratio':>6}  match")
     for f in figures if not brief else []:
         print(f"{f.table:<34} {f.estimator:<14} {f.published_rms:6.2f} {f.mean:6.2f} +-{f.std:5.2f} {f.ratio:6.2f}  "
-              f"{'yes' if f.matched else 'NO'}")
-    n = sum(f.matched for f in figures)
-    print(f"\nmatched within +-{TOLERANCE:.0%}: {n}/{len(figures)} = {n / len(figures):.0%} (target {TARGET_FRACTION:.0%})")
+              f"{('yes' if f.matched else 'NO') if f.counted else '(ordering only)'}")
+    counted = [f for f in figures if f.counted]
+    n = sum(f.matched for f in counted)
+    if counted:
+        print(f"\nmatched within +-{TOLERANCE:.0%}: {n}/{len(counted)} = {n / len(counted):.0%} (target {TARGET_FRACTION:.0%})")
     bad = [o for o in orderings if not o.holds]
     print(f"pairwise orderings holding: {len(orderings) - len(bad)}/{len(orderings)}")
     for o in bad:
@@ -240,7 +251,7 @@ def main() -> None:
         Path(args.json).write_text(json.dumps({
             "profile": args.profile, "seeds": list(seeds), "set": extra,
             "figures": [{"table": f.table, "estimator": f.estimator, "published_rms": f.published_rms, "ours": f.ours,
-                         "mean": f.mean, "std": f.std, "ratio": f.ratio, "matched": f.matched} for f in figures],
+                         "mean": f.mean, "std": f.std, "ratio": f.ratio, "matched": f.matched, "counted": f.counted} for f in figures],
             "orderings": [{"table": o.table, "better": o.better, "worse": o.worse, "published": o.published,
                            "ours": o.ours, "holds": o.holds} for o in orderings],
             "liu2016": zones,
