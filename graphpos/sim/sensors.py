@@ -229,13 +229,20 @@ def rfid(traj: Trajectory, tags: TagMap, env: RssEnvironment, duration_s: float,
     the farther tags: their rows are dropped after every draw, so the rows
     left are those of the full range, bit for bit. The radio reports RSS
     only, so ``range_m`` is NaN (a ranging radio adds it: :func:`rfid_ranges`).
+
+    A read stamped ``t`` was taken ``p["stamp_delay_s"]`` earlier (a reader
+    that reports each inventory round when it ends: the RSS and
+    ``true_range_m`` are those of the earlier position); stamps before the
+    delay has passed give no read.
     """
+    delay_s = p["stamp_delay_s"]
     t = sample_times(duration_s, p["rate_hz"])
+    t = t[t >= delay_s]
     empty = {"t_s": np.zeros(0), "tag_id": np.zeros(0), "rss": np.zeros(0), "true_range_m": np.zeros(0)}
     if len(tags) == 0:
         return empty
     offsets_db = env.draw_tag_offsets_db(len(tags), rng)
-    st = traj.state(t)
+    st = traj.state(t - delay_s)
     reader = np.column_stack([st["east_m"], st["north_m"]])
     tree = cKDTree(np.column_stack([tags.east_m, tags.north_m]))
     hits = tree.query_ball_point(reader, r=env.max_range_m)
