@@ -21,7 +21,10 @@ state vectors stay as printed:
   (itself a calibration), its distances divided by ``range_scale``
   (:meth:`graphpos.estimator.Estimator.resolved_range_model`);
 - compass yaw: ``reading - compass_bias_rad`` (a compass deviated by its
-  installation).
+  installation);
+- tag readings' times (``rfid.t_s``): ``stamp - range_delay_s`` (a reader
+  or logger that stamps each reading that long after it was taken); the
+  arrival time stays, so the estimators take the reading as a late one.
 
 Its noise levels go to every estimator config that has the matching field
 (:meth:`SensorProfile.tuned`): the heading noise the yaw-rate sensor leaves
@@ -55,6 +58,7 @@ PLAUSIBLE_LIMITS = {
     "range_offset_m": (-10.0, 10.0),
     "range_bearing2_m_per_rad2": (-10.0, 10.0),
     "compass_bias_rad": (-0.5, 0.5),
+    "range_delay_s": (-5.0, 5.0),
 }
 
 
@@ -78,6 +82,8 @@ class SensorProfile:
         grows towards the image's edges: MRCLAM's, :mod:`graphpos.io.mrclam`).
     compass_bias_rad : float
         The compass's constant deviation (``reading = yaw + bias``).
+    range_delay_s : float
+        How long after it was taken each tag reading is stamped, s.
     range_sigma0_m, range_sigma_slope : float or None
         1-sigma of a corrected range at zero distance and its growth per
         metre; None: the drive's default range model's.
@@ -101,6 +107,7 @@ class SensorProfile:
     range_offset_m: float = 0.0
     range_bearing2_m_per_rad2: float = 0.0
     compass_bias_rad: float = 0.0
+    range_delay_s: float = 0.0
     range_sigma0_m: float | None = None
     range_sigma_slope: float | None = None
     range_sigma_scale: float | None = None
@@ -143,14 +150,24 @@ class SensorProfile:
             from filters.models.angles import wrap_angle
 
             return {"yaw_rad": wrap_angle(columns["yaw_rad"] - self.compass_bias_rad)}
-        if channel == "rfid" and (self.range_scale != 1.0 or self.range_offset_m != 0.0 or self.range_bearing2_m_per_rad2 != 0.0):
-            range_m = columns["range_m"]
-            bearing = columns.get("bearing_rad")
-            if self.range_bearing2_m_per_rad2 != 0.0 and bearing is not None:
-                range_m = range_m - self.range_bearing2_m_per_rad2 * np.where(np.isfinite(bearing), bearing, 0.0) ** 2
-            corrected = np.maximum((range_m - self.range_offset_m) / self.range_scale, 0.0)
-            return {"range_m": np.where(np.isfinite(range_m), corrected, np.nan)}
+        if channel == "rfid":
+            fixed = {}
+            if self.range_scale != 1.0 or self.range_offset_m != 0.0 or self.range_bearing2_m_per_rad2 != 0.0:
+                range_m = columns["range_m"]
+                bearing = columns.get("bearing_rad")
+                if self.range_bearing2_m_per_rad2 != 0.0 and bearing is not None:
+                    range_m = range_m - self.range_bearing2_m_per_rad2 * np.where(np.isfinite(bearing), bearing, 0.0) ** 2
+                corrected = np.maximum((range_m - self.range_offset_m) / self.range_scale, 0.0)
+                fixed["range_m"] = np.where(np.isfinite(range_m), corrected, np.nan)
+            if self.range_delay_s != 0.0 and "t_s" in columns:  # a drive's column (live rows: corrected_time)
+                fixed["t_s"] = columns["t_s"] - self.range_delay_s
+                fixed["arrival_s"] = np.maximum(columns["arrival_s"], columns["t_s"])  # stays when it was received
+            return fixed
         return {}
+
+    def corrected_time(self, channel: str, t_s: float) -> float:
+        """One reading's time (a row of ``channel``, as live mode receives it) corrected as :meth:`correct` corrects a drive's."""
+        return t_s - self.range_delay_s if channel == "rfid" else t_s
 
     def tuned(self, config: Any) -> Any:
         """``config`` with the profile's noise levels in the fields it has (see the module docstring)."""
@@ -186,6 +203,7 @@ class SensorProfile:
             range_offset_m=self.range_offset_m + self.range_scale * later.range_offset_m,
             range_bearing2_m_per_rad2=self.range_bearing2_m_per_rad2 + self.range_scale * later.range_bearing2_m_per_rad2,
             compass_bias_rad=self.compass_bias_rad + later.compass_bias_rad,
+            range_delay_s=self.range_delay_s + later.range_delay_s,
         )
 
     # -- files ----------------------------------------------------------------------

@@ -52,7 +52,7 @@ whose gyro bias is what remains after the standstill correction.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
@@ -206,6 +206,7 @@ class GraphBuilder:
         self.keep_history = keep_history
         self.range_scale = range_scale
         self.range_offset_m = 0.0  # subtracted from recorded readings when the graph is rebuilt (graph-batch's offset search)
+        self.range_delay_s = 0.0  # how late the tag readings were stamped: their records moved back by it (graph-batch's search)
         self.initial_pose = initial_pose
         self.release_window_s = release_window_s
         self.period_s = 1.0 / config.keyframe_rate_hz
@@ -779,9 +780,27 @@ class GraphBuilder:
         noise = robust(record.sigma_m / scale, self.config)
         return self.model.range_factor(record.keyframe, record.landmark_key, (record.reading_m - offset) / scale, noise)
 
-    def graph(self, scale: float | None = None, extra_turn_density2: float = 0.0, offset: float | None = None) -> gtsam.NonlinearFactorGraph:
-        """Every factor so far (``keep_history``): ranges built with ``scale`` and ``offset`` (reading units; else
-        :attr:`range_offset_m`), wheel factors with
+    def delayed_range_records(self, delay_s: float) -> list[RangeRecord]:
+        """The range records with each tag reading moved to the keyframe nearest ``delay_s`` before its own (a
+        reading stamped ``delay_s`` after it was taken), at most to its track's first or last keyframe: every
+        reading stays (a delay search that dropped those moved off their track would find a spurious delay in the
+        error they no longer add). RSU ranges (no ``field``) keep theirs."""
+        if delay_s == 0.0:
+            return list(self.range_records)
+        out = []
+        for r in self.range_records:
+            if r.field is None:
+                out.append(r)
+                continue
+            seg = next(s for s in reversed(self.segments) if s.first <= r.keyframe)
+            k = seg.nearest(self.keyframe_time(r.keyframe) - delay_s, self.period_s)
+            out.append(replace(r, keyframe=min(max(k, seg.first), seg.last, self.last_keyframe)))
+        return out
+
+    def graph(self, scale: float | None = None, extra_turn_density2: float = 0.0, offset: float | None = None,
+              range_records: list[RangeRecord] | None = None) -> gtsam.NonlinearFactorGraph:
+        """Every factor so far (``keep_history``): ranges (``range_records``, else :attr:`range_records`) built
+        with ``scale`` and ``offset`` (reading units; else :attr:`range_offset_m`), wheel factors with
         :attr:`wheel_scale` (else with the drift term at :attr:`wheel_drift_density`, else as built online),
         their heading loosened by ``extra_turn_density2`` (:meth:`OdometryDelta.with_turn_density`),
         compass factors with the compass bias as an unknown when :attr:`compass_bias_sigma_rad` is set
@@ -789,7 +808,7 @@ class GraphBuilder:
         scale = self.range_scale if scale is None else scale
         offset = self.range_offset_m if offset is None else offset
         g = gtsam.NonlinearFactorGraph(self.fixed_factors)
-        for r in self.range_records:
+        for r in self.range_records if range_records is None else range_records:
             g.add(self.range_factor(r, scale, offset))
         sigma = self.config.compass_sigma_rad
         if self.compass_bias_sigma_rad is not None and self.compass_records:

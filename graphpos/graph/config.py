@@ -21,6 +21,7 @@ RANGE_SCALE_MODES = ("auto", "off", "estimate")
 WHEEL_SCALE_MODES = ("off", "estimate")
 COMPASS_BIAS_MODES = ("off", "estimate")
 RANGE_OFFSET_MODES = ("off", "estimate")
+RANGE_DELAY_MODES = ("auto", "off", "estimate")
 
 
 @dataclass
@@ -158,6 +159,17 @@ class GraphConfig:
         (:func:`~graphpos.graph.calibration.estimate_range_offset`) and adds
         the offset's uncertainty to the output covariances. Its
         self-calibration turns it on for drives that report ranges.
+    range_delay : {"auto", "off", "estimate"}
+        ``graph-batch`` only. ``estimate``: the final solve searches by
+        profile likelihood how long after it was taken each tag reading was
+        stamped (a reader that reports a round as it ends, a logger's
+        latency; :func:`~graphpos.graph.calibration.estimate_range_delay`)
+        and moves the readings back by it. ``auto``: its self-calibration
+        turns it on for its final solve (its first, with loosened odometry,
+        hardly tells a delay from a track that lags) and puts what it finds
+        in the profile
+        (``range_delay_s``), which corrects the readings' times for every
+        estimator.
     compass_bias : {"off", "estimate"}
         ``graph-batch``, and ``graph-isam2``'s online learning: a learnt bias
         corrects the readings to come once significant and found again by
@@ -239,6 +251,7 @@ class GraphConfig:
     range_scale: str = "auto"
     range_scale_bounds: tuple[float, float] = (0.8, 1.25)
     range_offset: str = "off"
+    range_delay: str = "auto"
     compass_bias: str = "estimate"
     compass_bias_sigma_rad: float = math.radians(5.0)
     wheel_scale: str = "estimate"
@@ -262,6 +275,8 @@ class GraphConfig:
             raise ConfigError(f"range_scale must be one of {RANGE_SCALE_MODES}, got {self.range_scale!r}")
         if self.range_offset not in RANGE_OFFSET_MODES:
             raise ConfigError(f"range_offset must be one of {RANGE_OFFSET_MODES}, got {self.range_offset!r}")
+        if self.range_delay not in RANGE_DELAY_MODES:
+            raise ConfigError(f"range_delay must be one of {RANGE_DELAY_MODES}, got {self.range_delay!r}")
         require_positive_numbers(self, skip=("max_delay_s",))
         if not (math.isfinite(self.max_delay_s) and self.max_delay_s >= 0):
             raise ConfigError(f"max_delay_s must be >= 0, got {self.max_delay_s}")

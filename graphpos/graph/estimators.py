@@ -532,6 +532,7 @@ class GraphBatch(_GraphEstimator):
             self.builder, self.model, self.values, self.config = plain.builder, plain.model, getattr(plain, "values", None), plain.config
             return est.with_wall_time(time.perf_counter() - t0)
         final_config = dataclasses.replace(c, self_calibrate=False, range_scale="off", wheel_scale="off",
+                                           range_delay="off" if c.range_delay == "off" else "estimate",
                                            range_offset="estimate" if profile.range_sigma0_m is not None else "off")
         final = GraphBatch(final_config, self.layout, self.range_model, self.initial_pose, profile)
         est = final.run(drive)
@@ -589,7 +590,7 @@ class GraphBatch(_GraphEstimator):
             self._pending = None
 
     def finish(self) -> Estimate:
-        from graphpos.graph.calibration import estimate_range_offset, estimate_range_scale
+        from graphpos.graph.calibration import estimate_range_delay, estimate_range_offset, estimate_range_scale
 
         self._apply(self.builder.flush())
         self._flush_pending()
@@ -610,6 +611,13 @@ class GraphBatch(_GraphEstimator):
             # pass their scale error on to the wheel's
             scale, initial = estimate_range_scale(self.builder, initial, self.config, what)
             self.builder.range_scale = scale
+        if self.config.range_delay == "estimate" and self.builder.has_tag_ranges and self.builder.range_records:
+            # after the scale (whose error would otherwise pass into the delay), before the rest is fitted
+            delay_s, initial = estimate_range_delay(self.builder, initial, self.config, what)
+            if delay_s:
+                self.builder.range_records = self.builder.delayed_range_records(delay_s)
+                self.builder.range_delay_s = delay_s
+                self.builder.diagnostics["range_delay_s"] = delay_s
         # tag ranges' sigmas at the distances of the causal (or scale) solve, not the readings'
         self.builder.reweight_ranges(initial)
         if fit_wheel:
@@ -677,10 +685,11 @@ def _with_found_terms(profile, estimate: Estimate):
     corrected readings' metres, the profile's in reading units) and the compass bias."""
     offset = estimate.diagnostics.get("range_offset_m") or 0.0
     compass = estimate.diagnostics.get("compass_bias_rad") or 0.0
-    if not offset and not compass:
+    delay = estimate.diagnostics.get("range_delay_s") or 0.0
+    if not offset and not compass and not delay:
         return profile
     return dataclasses.replace(profile, range_offset_m=profile.range_offset_m + offset * profile.range_scale,
-                               compass_bias_rad=profile.compass_bias_rad + compass)
+                               compass_bias_rad=profile.compass_bias_rad + compass, range_delay_s=profile.range_delay_s + delay)
 
 
 def _merge(into: Increment, inc: Increment) -> None:

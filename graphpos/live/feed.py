@@ -49,7 +49,7 @@ class LiveFeed:
         if self._layout_tags is not None and m.channel == "rfid" and int(m.values["tag_id"]) not in self._layout_tags:
             return []
         if self._profile is not None:
-            m = m._replace(values=self._profile.corrected_values(m.channel, m.values))
+            m = m._replace(values=self._profile.corrected_values(m.channel, m.values), t_s=self._profile.corrected_time(m.channel, m.t_s))
         return self.estimator.process(m)
 
     def finish(self) -> Estimate:
