@@ -217,7 +217,11 @@ def estimate_range_delay(builder, initial: gtsam.Values, config: GraphConfig, wh
     drives (reads stamped 1 s late), seeds 0-2, it finds 0.62-0.82 s and
     graph-batch's RMS goes from 1.48/1.93/1.85 m to 0.42/0.93/0.62 m; on
     Plaza1 and MRCLAM6 robots 1-5 it costs 3-4 solves and moves no RMS by
-    more than 2 mm.
+    more than 2 mm. Not yet on the paper comprehensive drives (seeds 0-1):
+    there the final solve's error rises with any delay and 0 is kept,
+    though the readings moved back by their true 1 s would take RMS from
+    1.78/1.93 m to 0.94/1.09 m (the first solve, fitted to the late
+    readings, seems to leave a profile that absorbs part of the lag).
     """
     from graphpos.graph.estimators import optimise
 
