@@ -199,7 +199,7 @@ RANGE_DELAY_MIN_GAIN = 1.92
 
 def estimate_range_delay(builder, initial: gtsam.Values, config: GraphConfig, what: str) -> tuple[float, gtsam.Values]:
     """How long after it was taken each tag reading was stamped, by profile likelihood; and the solution there
-    (``initial`` itself when no delay is kept).
+    (the undelayed solve's when no delay is kept).
 
     A reader that reports a round of reads as the round ends, or a logger
     that stamps a reading when it receives it, puts every reading some
@@ -243,7 +243,7 @@ def estimate_range_delay(builder, initial: gtsam.Values, config: GraphConfig, wh
     builder.diagnostics["range_delay_solves"] = len(solved)
     best = min(solved, key=lambda x: solved[x][0])
     if found is None or solved[0.0][0] - solved[best][0] < RANGE_DELAY_MIN_GAIN:
-        return 0.0, initial  # as if not searched: the caller goes on from where it was
+        return 0.0, solved[0.0][1]
     return float(best), solved[best][1]
 
 

@@ -611,15 +611,17 @@ class GraphBatch(_GraphEstimator):
             # pass their scale error on to the wheel's
             scale, initial = estimate_range_scale(self.builder, initial, self.config, what)
             self.builder.range_scale = scale
+        # tag ranges' sigmas at the distances of the causal (or scale) solve, not the readings'
+        self.builder.reweight_ranges(initial)
         if self.config.range_delay == "estimate" and self.builder.has_tag_ranges and self.builder.range_records:
-            # after the scale (whose error would otherwise pass into the delay), before the rest is fitted
+            # after the scale (whose error would otherwise pass into the delay) and the sigmas: where no delay is
+            # kept, the search's undelayed solve is the final graph's, and the final solve starts from it converged
             delay_s, initial = estimate_range_delay(self.builder, initial, self.config, what)
             if delay_s:
                 self.builder.range_records = self.builder.delayed_range_records(delay_s)
                 self.builder.range_delay_s = delay_s
                 self.builder.diagnostics["range_delay_s"] = delay_s
-        # tag ranges' sigmas at the distances of the causal (or scale) solve, not the readings'
-        self.builder.reweight_ranges(initial)
+                self.builder.reweight_ranges(initial)
         if fit_wheel:
             self.builder.wheel_drift_density = self.config.wheel_scale_density_per_sqrt_s * self.config.batch_wheel_drift_factor
             # only the wheel scale is taken from this solve: a 0.1 % tolerance
