@@ -214,8 +214,8 @@ def estimate_range_delay(builder, initial: gtsam.Values, config: GraphConfig, wh
     (a drive stamped on time, or one that hardly moves, keeps 0). A reading
     that the delay would move off its track stops at the track's end: every
     search compares the same readings. On the paper profile's straight
-    drives (reads stamped 1 s late), seeds 0-2, it finds 0.62-0.82 s and
-    graph-batch's RMS goes from 1.48/1.93/1.85 m to 0.42/0.93/0.62 m; on
+    drives (reads stamped 1 s late), seeds 0-2, it finds 0.63-0.88 s and
+    graph-batch's RMS goes from 1.48/1.93/1.85 m to 0.45/0.93/0.62 m; on
     Plaza1 and MRCLAM6 robots 1-5 it costs 3-4 solves and moves no RMS by
     more than 2 mm. Not yet on the paper comprehensive drives (seeds 0-1):
     there the final solve's error rises with any delay and 0 is kept,
