@@ -291,10 +291,15 @@ class GraphBuilder:
         return getattr(self.range_model, "input_column", None) == "range_m"
 
     # -- time grid ----------------------------------------------------------
-    def keyframe_time(self, k: int) -> float:
+    def _segment_of(self, k: int) -> Segment:
+        """The track keyframe ``k`` belongs to."""
         seg = self.segments[-1]  # nearly always: the current track's keyframes are asked for
         if seg.first > k:
             seg = next((s for s in reversed(self.segments) if s.first <= k), self.segments[0])
+        return seg
+
+    def keyframe_time(self, k: int) -> float:
+        seg = self._segment_of(k)
         return seg.t_s + (k - seg.first) * self.period_s
 
     def _keyframe_at(self, t_s: float) -> tuple[Segment, int] | None:
@@ -792,7 +797,7 @@ class GraphBuilder:
             if r.field is None:
                 out.append(r)
                 continue
-            seg = next(s for s in reversed(self.segments) if s.first <= r.keyframe)
+            seg = self._segment_of(r.keyframe)
             k = seg.nearest(self.keyframe_time(r.keyframe) - delay_s, self.period_s)
             out.append(replace(r, keyframe=min(max(k, seg.first), seg.last, self.last_keyframe)))
         return out

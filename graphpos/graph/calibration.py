@@ -56,24 +56,8 @@ def estimate_range_scale(builder, initial: gtsam.Values, config: GraphConfig, wh
     initial : gtsam.Values
         Starting point of the first solve (the causal pass's estimate).
     """
-    from graphpos.graph.estimators import optimise
-
     lo, hi = config.range_scale_bounds
-    solved: dict[float, tuple[float, gtsam.Values | None]] = {}
-
-    def at(scale: float, warm: gtsam.Values) -> tuple[float, gtsam.Values]:
-        scale = round(scale, 9)
-        if solved.get(scale, (0.0, None))[1] is None:
-            graph = builder.graph(scale)
-            values = optimise(graph, warm, config, f"{what} (range scale {scale:.4f})")
-            solved[scale] = (graph.error(values), values)
-            # only the best solve's values are kept: an hour-long drive's are tens of MB
-            best = min(solved, key=lambda x: solved[x][0])
-            for x in solved:
-                if x not in (best, scale):
-                    solved[x] = (solved[x][0], None)
-        return solved[scale]
-
+    at = _Solves(lambda scale: builder.graph(scale), config, lambda scale: f"{what} (range scale {scale:.4f})", digits=9, keep=())
     found = _profile_minimum(at, 1.0, RANGE_SCALE_STEP, (lo, hi), RANGE_SCALE_MAX_MOVES, initial)
     if found is None or not lo < found[0] < hi:
         warm = [initial]
@@ -83,9 +67,43 @@ def estimate_range_scale(builder, initial: gtsam.Values, config: GraphConfig, wh
             return err
 
         minimize_scalar(solved_error, bounds=(lo, hi), method="bounded", options={"xatol": SCALE_TOLERANCE})
-    builder.diagnostics["range_scale_solves"] = len(solved)
-    best = min(solved, key=lambda x: solved[x][0])
-    return float(best), solved[best][1]
+    builder.diagnostics["range_scale_solves"] = len(at.solved)
+    best = at.best()
+    return float(best), at.solved[best][1]
+
+
+class _Solves:
+    """A graph family over one parameter, solved on demand: ``(x, warm) -> (error, values)``, memoised.
+
+    ``graph_at(x)`` builds the graph at ``x`` (rounded to ``digits``),
+    solved by Levenberg-Marquardt warm-started from ``warm``; ``what(x)``
+    names it in errors. With ``keep`` a tuple, only the best solve's values,
+    those at ``keep`` and the latest are held (an hour-long drive's values are
+    tens of MB); ``keep=None`` holds every solve's.
+    """
+
+    def __init__(self, graph_at, config: GraphConfig, what, digits: int, keep: tuple[float, ...] | None):
+        self.graph_at, self.config, self.what, self.digits, self.keep = graph_at, config, what, digits, keep
+        self.solved: dict[float, tuple[float, gtsam.Values | None]] = {}
+
+    def __call__(self, x: float, warm: gtsam.Values | None) -> tuple[float, gtsam.Values]:
+        from graphpos.graph.estimators import optimise
+
+        x = round(x, self.digits)
+        if self.solved.get(x, (0.0, None))[1] is None:
+            graph = self.graph_at(x)
+            values = optimise(graph, warm, self.config, self.what(x))
+            self.solved[x] = (graph.error(values), values)
+            if self.keep is not None:
+                held = (self.best(), x, *self.keep)
+                for y in self.solved:
+                    if y not in held:
+                        self.solved[y] = (self.solved[y][0], None)
+        return self.solved[x]
+
+    def best(self) -> float:
+        """The parameter of the least solved error."""
+        return min(self.solved, key=lambda y: self.solved[y][0])
 
 
 def _profile_minimum(at, centre: float, step: float, bounds: tuple[float, float], max_moves: int,
@@ -161,21 +179,12 @@ def estimate_range_offset(builder, initial: gtsam.Values, config: GraphConfig, w
     lets the caller add that variance to the positions' covariance (the
     offset is estimated, not known).
     """
-    from graphpos.graph.estimators import optimise
-
     h = RANGE_OFFSET_STEP_M
-    solved: dict[float, tuple[float, gtsam.Values]] = {}
-
-    def at(offset: float, warm: gtsam.Values) -> tuple[float, gtsam.Values]:
-        offset = round(offset, 6)
-        if offset not in solved:
-            graph = builder.graph(offset=offset)
-            values = optimise(graph, warm, config, f"{what} (range offset {offset:+.3f} m)")
-            solved[offset] = (graph.error(values), values)
-        return solved[offset]
-
+    # every solve's values are held: the side solves about the final centre give the positions' sensitivity
+    at = _Solves(lambda offset: builder.graph(offset=offset), config, lambda offset: f"{what} (range offset {offset:+.3f} m)",
+                 digits=6, keep=None)
     found = _profile_minimum(at, 0.0, h, (-RANGE_OFFSET_BOUND_M, RANGE_OFFSET_BOUND_M), RANGE_OFFSET_MAX_MOVES, initial)
-    builder.diagnostics["range_offset_solves"] = len(solved)
+    builder.diagnostics["range_offset_solves"] = len(at.solved)
     if found is None:
         return RangeOffsetFit(0.0, None, at(0.0, initial)[1], None)
     vertex, curvature, centre = found
@@ -223,28 +232,14 @@ def estimate_range_delay(builder, initial: gtsam.Values, config: GraphConfig, wh
     1.78/1.93 m to 0.94/1.09 m (the first solve, fitted to the late
     readings, seems to leave a profile that absorbs part of the lag).
     """
-    from graphpos.graph.estimators import optimise
-
-    solved: dict[float, tuple[float, gtsam.Values | None]] = {}
-
-    def at(delay_s: float, warm: gtsam.Values) -> tuple[float, gtsam.Values]:
-        delay_s = round(delay_s, 6)
-        if solved.get(delay_s, (0.0, None))[1] is None:
-            graph = builder.graph(range_records=builder.delayed_range_records(delay_s))
-            values = optimise(graph, warm, config, f"{what} (tag readings {delay_s:+.2f} s late)")
-            solved[delay_s] = (graph.error(values), values)
-            best = min(solved, key=lambda x: solved[x][0])
-            for x in solved:  # the undelayed and the best solves' values are kept, the others' go
-                if x not in (0.0, best, delay_s):
-                    solved[x] = (solved[x][0], None)
-        return solved[delay_s]
-
+    at = _Solves(lambda delay_s: builder.graph(range_records=builder.delayed_range_records(delay_s)), config,
+                 lambda delay_s: f"{what} (tag readings {delay_s:+.2f} s late)", digits=6, keep=(0.0,))
     found = _profile_minimum(at, 0.0, RANGE_DELAY_STEP_S, RANGE_DELAY_BOUNDS_S, RANGE_DELAY_MAX_MOVES, initial)
-    builder.diagnostics["range_delay_solves"] = len(solved)
-    best = min(solved, key=lambda x: solved[x][0])
-    if found is None or solved[0.0][0] - solved[best][0] < RANGE_DELAY_MIN_GAIN:
-        return 0.0, solved[0.0][1]
-    return float(best), solved[best][1]
+    builder.diagnostics["range_delay_solves"] = len(at.solved)
+    best = at.best()
+    if found is None or at.solved[0.0][0] - at.solved[best][0] < RANGE_DELAY_MIN_GAIN:
+        return 0.0, at.solved[0.0][1]
+    return float(best), at.solved[best][1]
 
 
 def calibrate_range_scale(drive, config: GraphConfig | None = None, layout: str | None = None):

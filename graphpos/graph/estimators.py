@@ -684,7 +684,7 @@ BATCH_PASS_CHUNK_S = 5.0
 
 def _with_found_terms(profile, estimate: Estimate):
     """``profile`` with what a final solve found on its corrected readings added: the range offset (found in the
-    corrected readings' metres, the profile's in reading units) and the compass bias."""
+    corrected readings' metres, the profile's in reading units), the compass bias and the tag readings' delay."""
     offset = estimate.diagnostics.get("range_offset_m") or 0.0
     compass = estimate.diagnostics.get("compass_bias_rad") or 0.0
     delay = estimate.diagnostics.get("range_delay_s") or 0.0
