@@ -161,7 +161,9 @@ class SensorProfile:
                 fixed["range_m"] = np.where(np.isfinite(range_m), corrected, np.nan)
             if self.range_delay_s != 0.0 and "t_s" in columns:  # a drive's column (live rows: corrected_time)
                 fixed["t_s"] = columns["t_s"] - self.range_delay_s
-                fixed["arrival_s"] = np.maximum(columns["arrival_s"], columns["t_s"])  # stays when it was received
+                # received when it was (a late reading now); a reading stamped early (negative delay) arrives
+                # no sooner than it was taken
+                fixed["arrival_s"] = np.maximum(columns["arrival_s"], fixed["t_s"])
             return fixed
         return {}
 

@@ -184,6 +184,9 @@ def test_a_delay_moves_tag_readings_back_and_keeps_their_arrival():
     assert p.corrected_time("rfid", 5.0) == pytest.approx(4.6) and p.corrected_time("imu", 5.0) == 5.0
     q = SensorProfile(range_delay_s=-0.1)
     np.testing.assert_allclose(q.correct(c).rfid.t_s, p.combined(q).correct(d).rfid.t_s)
+    early = q.correct(d).rfid  # stamped before they were taken (graph-batch found -0.09 s on Plaza1): moved later
+    np.testing.assert_allclose(early.t_s, d.rfid.t_s + 0.1)
+    np.testing.assert_array_equal(early.arrival_s, np.maximum(d.rfid.arrival_s, early.t_s))
     with pytest.raises(ConfigError, match="range_delay_s"):
         SensorProfile(range_delay_s=12.0)
 
