@@ -214,6 +214,11 @@ class GraphConfig:
         ``graph-isam2`` without a sensor profile: learn one online from the
         causal history and correct the readings still to come
         (:class:`~graphpos.graph.estimators.GraphIsam2`).
+    covariance_check : bool
+        ``graph-isam2``: widen the causal covariances by how far its causal
+        rows turned out from its smoothed estimate of them
+        (:meth:`~graphpos.graph.estimators.GraphIsam2._check_covariance`);
+        False: the model's covariance as it is.
     calibration_odometry_factor : float
         Factor on the heading noise densities (``heading_drift_sigma_radps``,
         ``turn_scale_density_per_sqrt_s``) of the first solve.
@@ -259,6 +264,7 @@ class GraphConfig:
     batch_max_iterations: int = 100
     self_calibrate: bool = True
     learn_online: bool = True
+    covariance_check: bool = True
     calibration_odometry_factor: float = 5.0
 
     def __post_init__(self) -> None:

@@ -222,6 +222,10 @@ class GraphIsam2(_GraphEstimator):
     learn (it keeps no history); without learning the two give the same
     causal output (:class:`GraphFixedLag`).
 
+    Its causal covariances are checked against its own smoothed estimate
+    and widened where the rows turned out further off than they said
+    (:meth:`_check_covariance`; ``config.covariance_check``).
+
     Its iSAM2 keeps a window of ``config.isam2_window_s``
     (:class:`~graphpos.graph.smoothers.WindowedIsam2Smoother`): full iSAM2's
     per-update cost grows with the drive (8.5x from the first to the last
@@ -239,18 +243,72 @@ class GraphIsam2(_GraphEstimator):
         self._learnt_k = 0
         self._learning: list[dict] = []
         self._compass_seen: tuple[float, float] | None = None  # the total compass bias the last learning found, and its sigma
+        self._unchecked: collections.deque[tuple[int, float, float, np.ndarray]] = collections.deque()  # rows not yet checked
+        self._checked: collections.deque[tuple[float, float]] = collections.deque()  # (t_s, d' P^-1 d) of the checked rows
+        self._next_check_s = -math.inf
+        self._covariance_scale = 1.0
+        self._scales: list[float] = []
 
     def _apply(self, increments: list[Increment]) -> list[OutputRow]:
         out = super()._apply(increments)
         start = self.builder.diagnostics.get("anchor_keyframe")
-        if out and self._next_learn_s is not None and start is not None:
+        if out and start is not None:
             k = self.builder.last_keyframe  # every closed keyframe is in the smoother now
+            if self.config.output_covariance and self.config.covariance_check and self.builder.keyframe_time(k) >= self._next_check_s:
+                self._check_covariance(k)
+                self._next_check_s = self.builder.keyframe_time(k) + COVARIANCE_CHECK_EVERY_S
             received_s = k * self.builder.period_s  # the held track before the start is data too
-            if received_s >= self._next_learn_s:
+            if self._next_learn_s is not None and received_s >= self._next_learn_s:
                 self._learn(k)
                 while received_s >= self._next_learn_s:
                     self._next_learn_s *= 2.0
         return out
+
+    def _row(self, k: int, state: KeyframeState | None = None) -> OutputRow:
+        """The causal row, its covariance scaled by the last check's factor (:meth:`_check_covariance`)."""
+        row = super()._row(k, state)
+        if row.cov_en_m2 is None:
+            return row
+        self._unchecked.append((k, row.east_m, row.north_m, row.cov_en_m2))
+        return dataclasses.replace(row, cov_en_m2=row.cov_en_m2 * self._covariance_scale)
+
+    def _check_covariance(self, k: int) -> None:
+        """Scale the causal covariances to come by how far recent rows departed from the smoothed track.
+
+        Each causal row is compared, once :data:`COVARIANCE_CHECK_LAG_S` of
+        later data has come, with the smoother's present estimate of its
+        keyframe (far closer to the truth than a causal row; no truth is
+        read). For a consistent causal covariance ``P`` the difference ``d``
+        has covariance ``P`` less the smoothed one, so ``d' P^-1 d``
+        averages at most 2 (east, north). The mean over the rows checked in
+        the last :data:`COVARIANCE_CHECK_WINDOW_S`, halved, is the factor
+        (at least 1) on the covariances output until the next check
+        (every :data:`COVARIANCE_CHECK_EVERY_S`): an a posteriori variance
+        factor. The model's covariance holds only the noise it knows of; on
+        the MRCLAM robots (odometry from commanded speeds, camera range
+        errors that persist for seconds) the causal rows were 5-10 times
+        further off than their ellipses said (ANEES 22-110). The factor only
+        widens: the smoothed track is not the truth, so a difference
+        understates the error, never overstates it.
+        """
+        cutoff_s = self.builder.keyframe_time(k) - COVARIANCE_CHECK_LAG_S
+        values = None
+        while self._unchecked and self.builder.keyframe_time(self._unchecked[0][0]) <= cutoff_s:
+            j, east_m, north_m, cov = self._unchecked.popleft()
+            if values is None:
+                values = self.smoother.recent()
+            if not values.exists(self.model.pose_key(j)):
+                continue
+            d = np.array([east_m, north_m]) - self.model.position(values, j)
+            try:
+                self._checked.append((self.builder.keyframe_time(j), float(d @ np.linalg.solve(cov, d))))
+            except np.linalg.LinAlgError:
+                continue
+        while self._checked and self._checked[0][0] < cutoff_s - COVARIANCE_CHECK_WINDOW_S:
+            self._checked.popleft()
+        if len(self._checked) >= COVARIANCE_CHECK_MIN_ROWS:
+            self._covariance_scale = max(1.0, float(np.mean([x for _, x in self._checked])) / 2.0)
+        self._scales.append(self._covariance_scale)
 
     def _learn(self, k: int) -> None:
         from graphpos.graph.calibration import estimate_range_scale, fit_profile
@@ -352,6 +410,10 @@ class GraphIsam2(_GraphEstimator):
         est = super()._estimate(rows)
         if getattr(self, "_learning", None):
             est.diagnostics["online_calibration"] = self._learning
+        if getattr(self, "_scales", None):
+            scales = np.asarray(self._scales)
+            est.diagnostics["covariance_scale"] = {"checks": int(scales.size), "mean": float(scales.mean()), "max": float(scales.max()),
+                                                   "last": float(scales[-1])}
         return est
 
     def finish(self) -> Estimate:
@@ -393,7 +455,10 @@ class GraphFixedLag(_GraphEstimator):
     paper drives, beyond the lag too: the window is marginalised in
     batches, :class:`~graphpos.graph.smoothers.FixedLagSmoother`) when
     graph-isam2 learns no profile online (``learn_online=False``, or a
-    sensor profile given). It does not learn one itself: learning solves the
+    sensor profile given); their covariances too until graph-isam2's
+    covariance check first widens its own (:meth:`GraphIsam2._check_covariance`,
+    which compares rows with a smoothed estimate 30 s later: beyond this
+    window). It does not learn one itself: learning solves the
     whole track so far and rebuilds every range factor received
     (:class:`GraphIsam2`), the history a fixed-lag smoother exists not to
     keep. With learning (graph-isam2's default), graph-isam2 departs from
@@ -677,6 +742,14 @@ COMPASS_BIAS_SIGNIFICANCE = 2.0
 
 #: graph-isam2's first online calibration: once its track (held keyframes included) spans this many s (then 2x, 4x ...).
 LEARN_FIRST_S = 15.0
+#: graph-isam2 compares a causal row with its smoothed estimate of the same keyframe once this much later data
+#: has come, s (:meth:`GraphIsam2._check_covariance`).
+COVARIANCE_CHECK_LAG_S = 30.0
+#: How often graph-isam2 checks, s, and over how long a span of rows its factor is a mean, s.
+COVARIANCE_CHECK_EVERY_S = 10.0
+COVARIANCE_CHECK_WINDOW_S = 300.0
+#: Fewest checked rows (1 s at 10 Hz keyframes) that set the factor.
+COVARIANCE_CHECK_MIN_ROWS = 10
 
 #: Span of keyframes per iSAM2 update in graph-batch's seeding pass, s.
 BATCH_PASS_CHUNK_S = 5.0

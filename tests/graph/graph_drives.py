@@ -10,6 +10,18 @@ from graphpos.drive import Channel, Drive, TagMap
 from graphpos.ranging.model import LinearCalibration
 
 PLAZA = Path(__file__).resolve().parents[2] / "../shared/data/plaza/Plaza1.mat"
+MRCLAM6 = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset6"
+
+
+def mrclam_drive(robot: int) -> Drive:
+    """MRCLAM6 robot ``robot``'s drive (with its truth), or the test skipped when the data are absent."""
+    import pytest
+
+    from graphpos.io.mrclam import import_mrclam
+
+    if not MRCLAM6.exists():
+        pytest.skip(f"MRCLAM Dataset 6 not found at {MRCLAM6}")
+    return import_mrclam(MRCLAM6, robot)
 
 RANGE_SIGMA_M = 0.3
 #: The synthetic drive's wheel and gyro have no scale error and its range

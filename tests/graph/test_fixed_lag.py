@@ -3,17 +3,15 @@
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
-from graph_drives import errors, rms, synthetic_drive
+from graph_drives import errors, mrclam_drive, rms, synthetic_drive
 
 from graphpos.graph import ESTIMATORS
 from graphpos.graph.config import GraphConfig
 from graphpos.sim import simulate
 
-MRCLAM6 = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset6"
 
 
 def _gap_m(a, b) -> float:
@@ -78,16 +76,8 @@ def test_smoothed_rows_come_out_a_lag_late_online():
     assert min(delays) >= 5.0 - 1e-6 and max(delays) <= 6.0 + 0.1 + 1e-6
 
 
-def _mrclam(robot: int):
-    if not MRCLAM6.exists():
-        pytest.skip(f"MRCLAM Dataset 6 not found at {MRCLAM6}")
-    from graphpos.io.mrclam import import_mrclam
-
-    return import_mrclam(MRCLAM6, robot).without_truth()
-
-
 def _runs_through(name: str, robot: int, min_rows: int) -> None:
-    est = ESTIMATORS[name]().run(_mrclam(robot))
+    est = ESTIMATORS[name]().run(mrclam_drive(robot).without_truth())
     assert len(est) > min_rows
     assert np.all(np.isfinite(est.east_m)) and np.all(np.linalg.eigvalsh(est.cov_en_m2) > 0)
 
@@ -108,12 +98,9 @@ def test_mrclam_robots_1_and_4_start_without_an_indeterminate_window(name, robot
 
 
 def _first_seconds_with_truth(robot: int, seconds: float):
-    if not MRCLAM6.exists():
-        pytest.skip(f"MRCLAM Dataset 6 not found at {MRCLAM6}")
     from eval.reproduce import first_seconds
-    from graphpos.io.mrclam import import_mrclam
 
-    return first_seconds(import_mrclam(MRCLAM6, robot), seconds)
+    return first_seconds(mrclam_drive(robot), seconds)
 
 
 def test_smoothed_output_of_keyframes_released_with_later_ones_in_one_measurement():

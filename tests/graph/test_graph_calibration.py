@@ -6,7 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from graph_drives import SYNTHETIC_MODEL, position_errors, synthetic_drive
+from graph_drives import SYNTHETIC_MODEL, mrclam_drive, position_errors, synthetic_drive
 
 from graphpos.graph import ESTIMATORS
 from graphpos.graph.calibration import calibrate_range_scale, fit_bearing_term
@@ -157,17 +157,6 @@ def test_graph_isam2_learns_the_bearing_term_online():
     assert learnt(blind) == [0.0, 0.0, 0.0]
 
 
-def _mrclam(robot: int):
-    from pathlib import Path
-
-    from graphpos.io.mrclam import import_mrclam
-
-    path = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "mrclam" / "MRCLAM_Dataset6"
-    if not path.exists():
-        pytest.skip(f"MRCLAM Dataset 6 not found at {path}")
-    return import_mrclam(path, robot)
-
-
 @pytest.mark.slow
 def test_mrclam_robot3_accuracy_with_the_bearing_term():
     """MRCLAM6 robot 3, truth hidden, default settings: the camera's bearing term is found and used.
@@ -178,7 +167,7 @@ def test_mrclam_robot3_accuracy_with_the_bearing_term():
     """
     from eval.metrics import evaluate_estimate
 
-    drive = _mrclam(3)
+    drive = mrclam_drive(3)
     batch = ESTIMATORS["graph-batch"]().run(drive.without_truth())
     assert -2.5 < batch.diagnostics["profile"]["range_bearing2_m_per_rad2"] < -0.5
     whole = evaluate_estimate(drive, batch)["windows"]["whole"]
@@ -195,7 +184,7 @@ def test_mrclam_robot1_heading_noise_from_the_redundancy_of_its_turns():
     (plain fit: 0.0076 + 0.075, RMS 0.313 m, ANEES 6.12)."""
     from eval.metrics import evaluate_estimate
 
-    drive = _mrclam(1)
+    drive = mrclam_drive(1)
     batch = ESTIMATORS["graph-batch"]().run(drive.without_truth())
     assert batch.diagnostics["profile"]["heading_noise_radps_per_sqrt_s"] > 0.015
     whole = evaluate_estimate(drive, batch)["windows"]["whole"]
@@ -213,7 +202,7 @@ def test_mrclam_profile_of_robot1_serves_robot3_online():
     def profile_of(drive):
         return SensorProfile.from_dict(ESTIMATORS["graph-batch"]().run(drive.without_truth()).diagnostics["profile"])
 
-    r1, r3 = _mrclam(1), _mrclam(3)
+    r1, r3 = mrclam_drive(1), mrclam_drive(3)
     config = GraphConfig(output_covariance=False)
     own = ESTIMATORS["graph-isam2"](config, profile=profile_of(r3)).run(r3.without_truth())
     other = ESTIMATORS["graph-isam2"](config, profile=profile_of(r1)).run(r3.without_truth())
