@@ -9,6 +9,7 @@ and estimator, and each estimator's mean over the drives of a dataset::
     python benchmarks/real_drives.py -e graph-batch --plaza-only
     python benchmarks/real_drives.py --perturb             # Plaza1 + 0.3 deg/s gyro bias, truth heading +180 deg
     python benchmarks/real_drives.py --profile-from 1      # MRCLAM: graph-isam2 with a profile calibrated on robot 1
+    python benchmarks/real_drives.py --segments 150        # start-up: 150 s pieces beginning mid-drive
 
 Needs ``../shared/data`` beside the checkout (skips what is absent).
 """
@@ -91,6 +92,42 @@ def _profile_transfer(source_robot: int, robots: tuple[int, ...]) -> int:
     return 0
 
 
+#: Where the ``--segments`` pieces begin, as fractions of each drive's length.
+SEGMENT_STARTS = (0.0, 0.15, 0.3, 0.45, 0.6, 0.75)
+
+
+def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int:
+    """Each estimator on pieces of each drive that begin mid-drive (a new start: moving, other landmarks first).
+
+    Prints, per piece, how long after its beginning the first row came
+    ("never" when the estimator did not start), the RMS and ANEES of its
+    rows; then per estimator the pieces never started and the mean delay
+    (counting a piece never started as its whole length) and RMS.
+    """
+    print(f"{'piece':<34}{'estimator':<16}{'first_s':>8}{'rms_m':>8}{'anees':>9}")
+    summary: dict[str, list] = {n: [] for n in names}
+    for drives in groups.values():
+        for drive in drives:
+            for f in SEGMENT_STARTS:
+                a = drive.start_s + f * drive.duration_s
+                piece = drive.replace(name=f"{drive.name}@{f:.2f}", channels={k: ch.between(a, a + length_s) for k, ch in drive.channels.items()})
+                if len(piece.truth) < 2:
+                    continue
+                for name in names:
+                    r = score(piece, name)
+                    out = r["estimate"]
+                    first = float(out.t_s[0] - a) if len(out.t_s) else math.nan
+                    summary[name].append((first, r["rms_m"]))
+                    shown = f"{first:>8.1f}" if len(out.t_s) else f"{'never':>8}"
+                    print(f"{piece.name:<34}{name:<16}{shown}{r['rms_m']:>8.3f}{r['anees']:>9.2f}", flush=True)
+    for name, rows in summary.items():
+        first, rms = np.array(rows).T
+        never = int(np.isnan(first).sum())
+        print(f"{name}: {len(rows)} pieces of {length_s:.0f} s, {never} never started; first row after "
+              f"{np.mean(np.where(np.isnan(first), length_s, first)):.1f} s on average; mean RMS {np.nanmean(rms):.3f} m")
+    return 0
+
+
 def _has_setting(name: str, key: str) -> bool:
     from graphpos.registry import require_known
     from graphpos.settings import _has_setting as has
@@ -108,6 +145,8 @@ def main(argv=None) -> int:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="estimator setting (for every estimator that has KEY)")
     p.add_argument("--profile-from", type=int, metavar="N",
                    help="MRCLAM: graph-isam2 on every robot with the profile graph-batch calibrates on robot N, against its own drive's")
+    p.add_argument("--segments", type=float, metavar="S",
+                   help="start-up instead: each estimator on S-second pieces beginning at 0, 15, ... 75 %% of each drive")
     args = p.parse_args(argv)
     if args.profile_from is not None:
         return _profile_transfer(args.profile_from, tuple(int(r) for r in args.robots.split(",")))
@@ -128,6 +167,8 @@ def main(argv=None) -> int:
     if not groups:
         print("no recorded drives found under", DATA, file=sys.stderr)
         return 1
+    if args.segments is not None:
+        return _segments(groups, names, args.segments)
     print(f"{'drive':<28}{'estimator':<16}{'rms_m':>8}{'anees':>9}{'cpu_s':>8}")
     for group, drives in groups.items():
         means: dict[str, list] = {n: [] for n in names}
