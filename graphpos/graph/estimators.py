@@ -292,18 +292,18 @@ class GraphIsam2(_GraphEstimator):
         understates the error, never overstates it.
         """
         cutoff_s = self.builder.keyframe_time(k) - COVARIANCE_CHECK_LAG_S
-        values = None
+        ready = []
         while self._unchecked and self.builder.keyframe_time(self._unchecked[0][0]) <= cutoff_s:
-            j, east_m, north_m, cov = self._unchecked.popleft()
-            if values is None:
-                values = self.smoother.recent()
-            if not values.exists(self.model.pose_key(j)):
-                continue
-            d = np.array([east_m, north_m]) - self.model.position(values, j)
-            try:
-                self._checked.append((self.builder.keyframe_time(j), float(d @ np.linalg.solve(cov, d))))
-            except np.linalg.LinAlgError:
-                continue
+            ready.append(self._unchecked.popleft())
+        values = self.smoother.recent() if ready else None
+        ready = [r for r in ready if values.exists(self.model.pose_key(r[0]))]
+        if ready:
+            d = np.array([(r[1], r[2]) for r in ready]) - np.array([self.model.position(values, r[0]) for r in ready])
+            cov = np.array([r[3] for r in ready])
+            det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]  # d' P^-1 d of each row, the 2x2 inverse written out
+            nees = (cov[:, 1, 1] * d[:, 0] ** 2 - (cov[:, 0, 1] + cov[:, 1, 0]) * d[:, 0] * d[:, 1] + cov[:, 0, 0] * d[:, 1] ** 2) / det
+            times = np.array([self.builder.keyframe_time(r[0]) for r in ready])
+            self._checked.extend(zip(times[det > 0].tolist(), nees[det > 0].tolist()))
         while self._checked and self._checked[0][0] < cutoff_s - COVARIANCE_CHECK_WINDOW_S:
             self._checked.popleft()
         if len(self._checked) >= COVARIANCE_CHECK_MIN_ROWS:
