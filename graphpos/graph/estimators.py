@@ -270,6 +270,8 @@ class GraphIsam2(_GraphEstimator):
         if row.cov_en_m2 is None:
             return row
         self._unchecked.append((k, row.east_m, row.north_m, row.cov_en_m2))
+        if self._covariance_scale == 1.0:
+            return row
         return dataclasses.replace(row, cov_en_m2=row.cov_en_m2 * self._covariance_scale)
 
     def _check_covariance(self, k: int) -> None:
