@@ -254,7 +254,7 @@ class GraphIsam2(_GraphEstimator):
         start = self.builder.diagnostics.get("anchor_keyframe")
         if out and start is not None:
             k = self.builder.last_keyframe  # every closed keyframe is in the smoother now
-            if self.config.output_covariance and self.config.covariance_check and self.builder.keyframe_time(k) >= self._next_check_s:
+            if self._unchecked and self.builder.keyframe_time(k) >= self._next_check_s:  # rows with a covariance to check
                 self._check_covariance(k)
                 self._next_check_s = self.builder.keyframe_time(k) + COVARIANCE_CHECK_EVERY_S
             received_s = k * self.builder.period_s  # the held track before the start is data too
@@ -267,7 +267,7 @@ class GraphIsam2(_GraphEstimator):
     def _row(self, k: int, state: KeyframeState | None = None) -> OutputRow:
         """The causal row, its covariance scaled by the last check's factor (:meth:`_check_covariance`)."""
         row = super()._row(k, state)
-        if row.cov_en_m2 is None:
+        if row.cov_en_m2 is None or not self.config.covariance_check:
             return row
         self._unchecked.append((k, row.east_m, row.north_m, row.cov_en_m2))
         if self._covariance_scale == 1.0:
@@ -298,8 +298,9 @@ class GraphIsam2(_GraphEstimator):
         ready = []
         while self._unchecked and self.builder.keyframe_time(self._unchecked[0][0]) <= cutoff_s:
             ready.append(self._unchecked.popleft())
-        values = self.smoother.recent() if ready else None
-        ready = [r for r in ready if values.exists(self.model.pose_key(r[0]))]
+        if ready:
+            values = self.smoother.recent()
+            ready = [r for r in ready if values.exists(self.model.pose_key(r[0]))]
         if ready:
             d = np.array([(r[1], r[2]) for r in ready]) - np.array([self.model.position(values, r[0]) for r in ready])
             cov = np.array([r[3] for r in ready])
