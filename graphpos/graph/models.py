@@ -80,8 +80,21 @@ def compass_noise(sigma: float | np.ndarray, config: GraphConfig, dim: int = 1) 
     """The compass's noise: a magnetic disturbance (steel near the road) deflects
     many consecutive readings by the same tens of degrees, so a bounded
     influence per reading (Huber) still adds up; a redescending loss
-    (Cauchy) lets the gyro carry the heading through it."""
-    return robust(sigma, config, dim, config.compass_loss, config.compass_robust_k)
+    (Cauchy) lets the gyro carry the heading through it.
+
+    Every compass factor of a drive has the same sigmas: one noise model
+    (GTSAM's are immutable) is built per sigmas and loss and shared, not
+    three pybind objects per reading (issue 19).
+    """
+    key = (tuple(np.atleast_1d(sigma).tolist()), dim, config.compass_loss, config.compass_robust_k)
+    noise = _COMPASS_NOISE.get(key)
+    if noise is None:
+        noise = _COMPASS_NOISE[key] = robust(sigma, config, dim, config.compass_loss, config.compass_robust_k)
+    return noise
+
+
+#: :func:`compass_noise`'s models by (sigmas, dim, loss, k).
+_COMPASS_NOISE: dict[tuple, gtsam.noiseModel.Base] = {}
 
 
 def _scaled(delta: OdometryDelta, wheel_scale: float | None) -> tuple[float, float, np.ndarray]:
