@@ -10,6 +10,7 @@ and estimator, and each estimator's mean over the drives of a dataset::
     python benchmarks/real_drives.py --perturb             # Plaza1 + 0.3 deg/s gyro bias, truth heading +180 deg
     python benchmarks/real_drives.py --profile-from 1      # MRCLAM: graph-isam2 with a profile calibrated on robot 1
     python benchmarks/real_drives.py --segments 150        # start-up: 150 s pieces beginning mid-drive
+    python benchmarks/real_drives.py --halves 150          # short recordings: a profile from each drive's first half
 
 Needs ``../shared/data`` beside the checkout (skips what is absent).
 """
@@ -25,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from eval.metrics import evaluate_estimate
+from graphpos.errors import MissingChannelError
 from graphpos.registry import make_estimator
 
 DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
@@ -128,6 +130,49 @@ def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int
     return 0
 
 
+#: Where the ``--halves`` pieces begin, as fractions of each drive's length (all in its second half).
+HALVES_STARTS = (0.55, 0.7, 0.85)
+
+
+def _halves(groups: dict[str, list], names: list[str], length_s: float) -> int:
+    """The fleet workflow on short recordings: a profile calibrated on each drive's first half, used on pieces of its second.
+
+    graph-batch calibrates (as ``graphpos calibrate``) on the first half of
+    each drive; each estimator then runs on S-second pieces beginning at
+    55, 70 and 85 % of the drive, on its own (self-calibrating or learning
+    online from the piece alone) and with that profile (as ``--profile``).
+    Prints RMS and ANEES per piece, then per estimator the mean RMS and
+    median ANEES over the pieces where both started.
+    """
+    print(f"{'piece':<34}{'estimator':<16}{'own rms':>8}{'anees':>8}{'profile rms':>12}{'anees':>8}")
+    summary: dict[str, list] = {n: [] for n in names}
+    for drives in groups.values():
+        for drive in drives:
+            mid = drive.start_s + 0.5 * drive.duration_s
+            first = drive.replace(name=drive.name + "-first-half", channels={k: ch.between(drive.start_s, mid) for k, ch in drive.channels.items()})
+            profile = _profile_of(first)
+            for f in HALVES_STARTS:
+                a = drive.start_s + f * drive.duration_s
+                piece = drive.replace(name=f"{drive.name}@{f:.2f}", channels={k: ch.between(a, a + length_s) for k, ch in drive.channels.items()})
+                for name in names:
+                    try:
+                        own, given = score(piece, name), score(piece, name, profile=profile)
+                    except MissingChannelError as exc:  # a piece without a reading the estimator needs
+                        print(f"{piece.name:<34}{name:<16}  cannot run: {exc}", flush=True)
+                        continue
+                    if not (len(own["estimate"].t_s) and len(given["estimate"].t_s)):
+                        which = [w for w, r in (("on its own", own), ("with the profile", given)) if not len(r["estimate"].t_s)]
+                        print(f"{piece.name:<34}{name:<16}  not started {' nor '.join(which)}", flush=True)
+                        continue
+                    summary[name].append((own["rms_m"], own["anees"], given["rms_m"], given["anees"]))
+                    print(f"{piece.name:<34}{name:<16}{own['rms_m']:>8.3f}{own['anees']:>8.2f}{given['rms_m']:>12.3f}{given['anees']:>8.2f}", flush=True)
+    for name, rows in summary.items():
+        r = np.array(rows).reshape(-1, 4)
+        print(f"{name}: {len(r)} pieces of {length_s:.0f} s; on its own mean RMS {np.mean(r[:, 0]):.3f} m, median ANEES {np.nanmedian(r[:, 1]):.2f}; "
+              f"with the first half's profile {np.mean(r[:, 2]):.3f} m, {np.nanmedian(r[:, 3]):.2f}")
+    return 0
+
+
 def _has_setting(name: str, key: str) -> bool:
     from graphpos.registry import require_known
     from graphpos.settings import _has_setting as has
@@ -147,6 +192,9 @@ def main(argv=None) -> int:
                    help="MRCLAM: graph-isam2 on every robot with the profile graph-batch calibrates on robot N, against its own drive's")
     p.add_argument("--segments", type=float, metavar="S",
                    help="start-up instead: each estimator on S-second pieces beginning at 0, 15, ... 75 %% of each drive")
+    p.add_argument("--halves", type=float, metavar="S",
+                   help="short recordings instead: each estimator on S-second pieces of each drive's second half, on its own "
+                        "and with the profile graph-batch calibrates on the first half")
     args = p.parse_args(argv)
     if args.profile_from is not None:
         return _profile_transfer(args.profile_from, tuple(int(r) for r in args.robots.split(",")))
@@ -169,6 +217,8 @@ def main(argv=None) -> int:
         return 1
     if args.segments is not None:
         return _segments(groups, names, args.segments)
+    if args.halves is not None:
+        return _halves(groups, names, args.halves)
     print(f"{'drive':<28}{'estimator':<16}{'rms_m':>8}{'anees':>9}{'cpu_s':>8}")
     for group, drives in groups.items():
         means: dict[str, list] = {n: [] for n in names}
