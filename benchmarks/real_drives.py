@@ -8,7 +8,7 @@ and estimator, and each estimator's mean over the drives of a dataset::
     python benchmarks/real_drives.py                       # Plaza1 + MRCLAM6 robots 1-5
     python benchmarks/real_drives.py -e graph-batch --plaza-only
     python benchmarks/real_drives.py --perturb             # Plaza1 + 0.3 deg/s gyro bias, truth heading +180 deg
-    python benchmarks/real_drives.py --profile-from 1      # MRCLAM: graph-isam2 with a profile calibrated on robot 1
+    python benchmarks/real_drives.py --profile-from 1      # MRCLAM: graph-isam2, graph-batch with a profile calibrated on robot 1
     python benchmarks/real_drives.py --segments 150        # start-up: 150 s pieces beginning mid-drive
     python benchmarks/real_drives.py --halves 150          # short recordings: a profile from each drive's first half
 
@@ -79,18 +79,19 @@ def _profile_of(drive):
 
 
 def _profile_transfer(source_robot: int, robots: tuple[int, ...]) -> int:
-    """graph-isam2 on each robot with robot ``source_robot``'s profile and with its own."""
+    """graph-isam2 and graph-batch on each robot with robot ``source_robot``'s profile and with its own (RMS, ANEES)."""
     drives = mrclam_drives(robots)
     if not drives:
         print("MRCLAM data not found under", DATA, file=sys.stderr)
         return 1
     profiles = {r: _profile_of(d) for r, d in zip(robots, drives)}
     source = profiles.get(source_robot) or _profile_of(mrclam_drives((source_robot,))[0])
-    print(f"{'drive':<28}{'own profile rms_m':>18}{'robot ' + str(source_robot) + ' profile':>18}{'ratio':>8}")
+    print(f"{'drive':<28}{'estimator':<14}{'own profile rms_m':>18}{'anees':>8}{'robot ' + str(source_robot) + ' profile':>18}{'anees':>8}{'rms ratio':>10}")
     for r, d in zip(robots, drives):
-        own = score(d, "graph-isam2", profile=profiles[r])["rms_m"]
-        other = score(d, "graph-isam2", profile=source)["rms_m"]
-        print(f"{d.name:<28}{own:>18.3f}{other:>18.3f}{other / own:>8.3f}", flush=True)
+        for name in ("graph-isam2", "graph-batch"):
+            own, other = score(d, name, profile=profiles[r]), score(d, name, profile=source)
+            print(f"{d.name:<28}{name:<14}{own['rms_m']:>18.3f}{own['anees']:>8.2f}{other['rms_m']:>18.3f}{other['anees']:>8.2f}"
+                  f"{other['rms_m'] / own['rms_m']:>10.3f}", flush=True)
     return 0
 
 
@@ -189,7 +190,7 @@ def main(argv=None) -> int:
     p.add_argument("--perturb", action="store_true", help="also Plaza1 with a 0.3 deg/s gyro bias and a reversed truth heading")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="estimator setting (for every estimator that has KEY)")
     p.add_argument("--profile-from", type=int, metavar="N",
-                   help="MRCLAM: graph-isam2 on every robot with the profile graph-batch calibrates on robot N, against its own drive's")
+                   help="MRCLAM: graph-isam2 and graph-batch on every robot with the profile graph-batch calibrates on robot N, against its own drive's")
     p.add_argument("--segments", type=float, metavar="S",
                    help="start-up instead: each estimator on S-second pieces beginning at 0, 15, ... 75 %% of each drive")
     p.add_argument("--halves", type=float, metavar="S",

@@ -602,7 +602,7 @@ class GraphBatch(_GraphEstimator):
             return est.with_wall_time(time.perf_counter() - t0)
         final_config = dataclasses.replace(c, self_calibrate=False, range_scale="off", wheel_scale="off",
                                            range_delay="off" if c.range_delay == "off" else "estimate",
-                                           range_offset="estimate" if profile.range_sigma0_m is not None else "off")
+                                           range_offset="estimate" if profile.range_sigma0_m is not None and c.range_offset != "off" else "off")
         final = GraphBatch(final_config, self.layout, self.range_model, self.initial_pose, profile)
         est = final.run(drive)
         profile = _with_found_terms(profile, est)
@@ -700,7 +700,8 @@ class GraphBatch(_GraphEstimator):
             self.builder.reweight_ranges(initial)
             self._fit_wheel_scale(initial)
         offset = None
-        if self.config.range_offset == "estimate" and self.builder.range_records and self.builder.reports_ranges:
+        search_offset = self.config.range_offset == "estimate" or (self.config.range_offset == "auto" and self.profile is not None)
+        if search_offset and self.builder.range_records and self.builder.reports_ranges:
             offset = estimate_range_offset(self.builder, initial, self.config, what)
             self.builder.range_offset_m = offset.offset_m
             self.builder.diagnostics.update(range_offset_m=offset.offset_m, range_offset_sigma_m=offset.sigma_m)

@@ -351,3 +351,24 @@ def test_range_offset_found_by_profile_likelihood(seed):
         assert np.all(added > -1e-6) and float(np.mean(added)) > 0
         assert evaluate_estimate(drive, out)["windows"]["whole"]["nees"]["anees"] < 2.5
     assert found[0.3] - found[0.0] == pytest.approx(0.3, abs=0.03)
+
+
+def test_a_given_profile_still_has_its_range_offset_searched():
+    """With a sensor profile (one solve, no self-calibration), graph-batch's default ``range_offset="auto"`` searches
+    the offset the profile left (another vehicle's camera; MRCLAM6 with robot 1's profile: ANEES 7.6-18.8 to
+    3.9-6.3) and widens the covariance by its uncertainty; ``"off"`` leaves the ranges as the profile made them."""
+    from graphpos.profile import SensorProfile
+
+    drive = _offset_drive(0.3, 12)
+    profile = SensorProfile(wheel_scale=1.0)  # says nothing of the ranges: their 0.3 m is left
+    config = GraphConfig(parameterisation="planar", range_scale="off", compass_bias="off", **SYNTHETIC_MODEL)
+    assert config.range_offset == "auto"
+    out = ESTIMATORS["graph-batch"](config, range_model=LinearCalibration(sigma0_m=0.3), profile=profile).run(drive.without_truth())
+    off = ESTIMATORS["graph-batch"](dataclasses.replace(config, range_offset="off"), range_model=LinearCalibration(sigma0_m=0.3),
+                                    profile=profile).run(drive.without_truth())
+    assert "range_offset_m" not in off.diagnostics
+    offset, sigma = out.diagnostics["range_offset_m"], out.diagnostics["range_offset_sigma_m"]
+    assert abs(offset - 0.3) < 2.5 * sigma
+    added = np.trace(out.cov_en_m2, axis1=1, axis2=2) - np.trace(off.cov_en_m2, axis1=1, axis2=2)
+    assert np.all(added > -1e-6) and float(np.mean(added)) > 0
+    assert np.sqrt(np.mean(position_errors(drive, out) ** 2)) < np.sqrt(np.mean(position_errors(drive, off) ** 2))
