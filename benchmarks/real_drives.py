@@ -95,6 +95,11 @@ def _profile_transfer(source_robot: int, robots: tuple[int, ...]) -> int:
     return 0
 
 
+def _cut(drive, start_s: float, end_s: float, name: str):
+    """The drive between two times, every channel cut alike (a recording that began and ended there)."""
+    return drive.replace(name=name, channels={k: ch.between(start_s, end_s) for k, ch in drive.channels.items()})
+
+
 #: Where the ``--segments`` pieces begin, as fractions of each drive's length.
 SEGMENT_STARTS = (0.0, 0.15, 0.3, 0.45, 0.6, 0.75)
 
@@ -113,7 +118,7 @@ def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int
         for drive in drives:
             for f in SEGMENT_STARTS:
                 a = drive.start_s + f * drive.duration_s
-                piece = drive.replace(name=f"{drive.name}@{f:.2f}", channels={k: ch.between(a, a + length_s) for k, ch in drive.channels.items()})
+                piece = _cut(drive, a, a + length_s, f"{drive.name}@{f:.2f}")
                 if len(piece.truth) < 2:
                     continue
                 for name in names:
@@ -149,12 +154,10 @@ def _halves(groups: dict[str, list], names: list[str], length_s: float) -> int:
     summary: dict[str, list] = {n: [] for n in names}
     for drives in groups.values():
         for drive in drives:
-            mid = drive.start_s + 0.5 * drive.duration_s
-            first = drive.replace(name=drive.name + "-first-half", channels={k: ch.between(drive.start_s, mid) for k, ch in drive.channels.items()})
-            profile = _profile_of(first)
+            profile = _profile_of(_cut(drive, drive.start_s, drive.start_s + 0.5 * drive.duration_s, drive.name + "-first-half"))
             for f in HALVES_STARTS:
                 a = drive.start_s + f * drive.duration_s
-                piece = drive.replace(name=f"{drive.name}@{f:.2f}", channels={k: ch.between(a, a + length_s) for k, ch in drive.channels.items()})
+                piece = _cut(drive, a, a + length_s, f"{drive.name}@{f:.2f}")
                 for name in names:
                     try:
                         own, given = score(piece, name), score(piece, name, profile=profile)

@@ -570,8 +570,8 @@ class GraphBatch(_GraphEstimator):
         MRCLAM6, mean RMS over the five robots 0.295 to 0.248 m), then
         fitted again about the second solve's track and solved a third
         time (0.225 to 0.215 m, every robot better, ANEES as before). On
-        drives that report ranges the final solves also search the offset
-        common to every range (``range_offset="estimate"``,
+        drives that report ranges the final solves, given the drive's profile,
+        also search the offset common to every range (``range_offset`` ``auto``,
         :func:`~graphpos.graph.calibration.estimate_range_offset`), which the
         residuals about a solved track cannot show (MRCLAM6: mean RMS 0.215
         to 0.205 m, ANEES 4.0-11.8 to 3.2-6.7; Plaza1 0.240 to 0.241 m). Its
@@ -601,8 +601,7 @@ class GraphBatch(_GraphEstimator):
             self.builder, self.model, self.values, self.config = plain.builder, plain.model, getattr(plain, "values", None), plain.config
             return est.with_wall_time(time.perf_counter() - t0)
         final_config = dataclasses.replace(c, self_calibrate=False, range_scale="off", wheel_scale="off",
-                                           range_delay="off" if c.range_delay == "off" else "estimate",
-                                           range_offset="estimate" if profile.range_sigma0_m is not None and c.range_offset != "off" else "off")
+                                           range_delay="off" if c.range_delay == "off" else "estimate")
         final = GraphBatch(final_config, self.layout, self.range_model, self.initial_pose, profile)
         est = final.run(drive)
         profile = _with_found_terms(profile, est)
