@@ -184,6 +184,19 @@ def _has_setting(name: str, key: str) -> bool:
     return has(require_known([name])[name].default_config(), key)
 
 
+def new_reading_rates(drive) -> dict[str, str]:
+    """The rate settings the drive check ``held-readings`` suggests: each odometry channel that repeats its readings."""
+    from graphpos.io.checks import HELD_READINGS_SHARE, ODOMETRY_READINGS, new_reading_rate_hz
+
+    out = {}
+    for channel, column, setting in ODOMETRY_READINGS:
+        if drive.has(channel) and column in drive.channels[channel].columns:
+            rates = new_reading_rate_hz(drive.channels[channel].t_s, drive.channels[channel].columns[column])
+            if rates is not None and rates[1] < HELD_READINGS_SHARE * rates[0]:
+                out[setting] = f"{rates[1]:.3g}"
+    return out
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("-e", "--estimator", action="append", help="estimator (repeatable; default: %s)" % ", ".join(DEFAULT_ESTIMATORS))
@@ -192,6 +205,9 @@ def main(argv=None) -> int:
     p.add_argument("--robots", default="1,2,3,4,5")
     p.add_argument("--perturb", action="store_true", help="also Plaza1 with a 0.3 deg/s gyro bias and a reversed truth heading")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="estimator setting (for every estimator that has KEY)")
+    p.add_argument("--new-reading-rates", action="store_true",
+                   help="give each drive's estimators the rates of new readings that 'graphpos info' suggests for odometry "
+                        "that repeats its readings (drive check held-readings), as a user would")
     p.add_argument("--profile-from", type=int, metavar="N",
                    help="MRCLAM: graph-isam2 and graph-batch on every robot with the profile graph-batch calibrates on robot N, against its own drive's")
     p.add_argument("--segments", type=float, metavar="S",
@@ -228,7 +244,8 @@ def main(argv=None) -> int:
         means: dict[str, list] = {n: [] for n in names}
         for drive in drives:
             for name in names:
-                cls_settings = {k: v for k, v in settings.items() if _has_setting(name, k)}
+                given = {**(new_reading_rates(drive) if args.new_reading_rates else {}), **settings}
+                cls_settings = {k: v for k, v in given.items() if _has_setting(name, k)}
                 try:
                     r = score(drive, name, cls_settings or None)
                 except Exception as exc:  # noqa: BLE001 - a benchmark reports and goes on

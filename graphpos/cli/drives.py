@@ -173,7 +173,7 @@ def _print_info(info: dict[str, Any]) -> None:
         print("estimates " + ", ".join(f"{k} ({v['count']} rows)" for k, v in info["estimates"].items()))
     print("checks (error: run and evaluate refuse the drive; warning: they say so)")
     for check in info["checks"]:
-        print(f"  {check['name']:<13}{check['level']:<8}{check['verdict']:<8}{check['checked']:<13}"
+        print(f"  {check['name']:<15}{check['level']:<8}{check['verdict']:<8}{check['checked']:<13}"
               f"{check['message'] or check['rule']}")
     if info.get("truth_checks"):
         from graphpos.io.checks import describe_check

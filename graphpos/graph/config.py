@@ -22,6 +22,8 @@ WHEEL_SCALE_MODES = ("off", "estimate")
 COMPASS_BIAS_MODES = ("off", "estimate")
 RANGE_OFFSET_MODES = ("auto", "off", "estimate")
 RANGE_DELAY_MODES = ("auto", "off", "estimate")
+#: IMU and wheel rate, Hz, a graph assumes when its config leaves them to the drive and the drive has no such rows.
+DEFAULT_SENSOR_RATE_HZ = 100.0
 
 
 @dataclass
@@ -51,9 +53,13 @@ class GraphConfig:
     accel_sigma_mps2, gyro_sigma_radps : float
         Per-sample 1-sigma of the accelerometers and the yaw gyro at
         ``imu_rate_hz`` (song2016 §6: 0.1 m/s^2, 0.2 deg/s).
-    imu_rate_hz : float
-        IMU rate, to turn per-sample sigmas into noise densities; replaced
-        by the rate measured on the drive when it has IMU samples.
+    imu_rate_hz : float or None
+        IMU rate, to turn per-sample sigmas into noise densities. None (the
+        default): measured on the drive (1 / the median interval of its IMU
+        rows; :data:`DEFAULT_SENSOR_RATE_HZ` without them). A rate given is
+        kept: for a logger that repeats each reading over several rows,
+        give the rate of new readings (``graphpos info`` warns of such a
+        channel and prints it).
     accel_bias_sigma_mps2, gyro_bias_sigma_radps : float
         Prior 1-sigma of the turn-on biases.
     accel_bias_walk_mps2_per_sqrt_s, gyro_bias_walk_radps_per_sqrt_s : float
@@ -86,9 +92,9 @@ class GraphConfig:
         density 0.12 (factor 1) gave 0.385 / 0.367 m RMS, 0.25 gave
         0.359 / 0.302, 0.4 gave 0.613 / 0.302 (too loose: the along-track
         position then wanders between tags).
-    wheel_rate_hz : float
-        Wheel-speed rate (per-sample sigma -> density); replaced by the
-        drive's measured rate like ``imu_rate_hz``.
+    wheel_rate_hz : float or None
+        Wheel-speed rate (per-sample sigma -> density); None: measured on
+        the drive, as ``imu_rate_hz``.
     lateral_slip_sigma_mps : float
         1-sigma of the body's lateral (and vertical) velocity: the
         non-holonomic constraint of the wheel odometry factor.
@@ -241,7 +247,7 @@ class GraphConfig:
     compass_robust_k: float = 0.45
     accel_sigma_mps2: float = 0.1
     gyro_sigma_radps: float = math.radians(0.2)
-    imu_rate_hz: float = 100.0
+    imu_rate_hz: float | None = None
     accel_bias_sigma_mps2: float = 0.1
     gyro_bias_sigma_radps: float = math.radians(0.5)
     accel_bias_walk_mps2_per_sqrt_s: float = 1e-2
@@ -251,7 +257,7 @@ class GraphConfig:
     heading_noise_radps_per_sqrt_s: float = 1e-4
     turn_scale_density_per_sqrt_s: float = 0.02
     batch_wheel_drift_factor: float = 2.0
-    wheel_rate_hz: float = 100.0
+    wheel_rate_hz: float | None = None
     lateral_slip_sigma_mps: float = 0.05
     heading_drift_sigma_radps: float = math.radians(0.1)
     compass_sigma_rad: float = math.radians(1.5)
@@ -292,6 +298,10 @@ class GraphConfig:
         if self.range_delay not in RANGE_DELAY_MODES:
             raise ConfigError(f"range_delay must be one of {RANGE_DELAY_MODES}, got {self.range_delay!r}")
         require_positive_numbers(self, skip=("max_delay_s",))
+        for name in ("imu_rate_hz", "wheel_rate_hz"):
+            rate = getattr(self, name)
+            if rate is not None and not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
+                raise ConfigError(f"{name} must be a positive finite number or None (measured on the drive), got {rate!r}")
         if not (math.isfinite(self.max_delay_s) and self.max_delay_s >= 0):
             raise ConfigError(f"max_delay_s must be >= 0, got {self.max_delay_s}")
         for name in ("fixed_lag_s", "isam2_window_s"):

@@ -37,7 +37,7 @@ from graphpos.errors import ConfigError, EstimationError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
 from graphpos.graph.builder import ODOMETRY_SENSORS, GraphBuilder, Increment
-from graphpos.graph.config import GraphConfig
+from graphpos.graph.config import DEFAULT_SENSOR_RATE_HZ, GraphConfig
 from graphpos.graph.models import COMPASS_BIAS_KEY, KeyframeState, make_model
 from graphpos.graph.smoothers import MARGINALISE_EVERY_S, FixedLagSmoother, ValuesSource, WindowedIsam2Smoother, gtsam_error
 from graphpos.ignition import NOT_STARTED
@@ -181,13 +181,19 @@ class _GraphEstimator(Estimator):
 
 
 def _with_drive_rates(config: GraphConfig, drive: Drive) -> GraphConfig:
-    """The config with ``imu_rate_hz`` / ``wheel_rate_hz`` measured from the drive.
+    """The config with ``imu_rate_hz`` / ``wheel_rate_hz`` measured from the drive where it leaves them None.
 
     Sensor sigmas are per sample; their noise densities need the real
-    sample rate (the Plaza odometry runs at 5 Hz, the simulator at 100 Hz).
+    sample rate (the Plaza odometry runs at 5 Hz, the simulator at 100 Hz):
+    1 / the median interval of the channel's rows, or
+    :data:`~graphpos.graph.config.DEFAULT_SENSOR_RATE_HZ` when the drive has
+    too few (a live feed starts with none). A rate the config gives is kept.
     """
     rates = {}
     for channel, field_name in (("imu", "imu_rate_hz"), ("wheel", "wheel_rate_hz")):
+        if getattr(config, field_name) is not None:
+            continue
+        rates[field_name] = DEFAULT_SENSOR_RATE_HZ
         if drive.has(channel) and len(drive.channels[channel]) > 2:
             dt = float(np.median(np.diff(drive.channels[channel].t_s)))
             if dt > 0:

@@ -645,6 +645,47 @@ def _unclosed_recording(drive: Drive) -> str | None:
     return f"the recording was not closed (its writer was stopped) and was read up to its last complete chunk, {ending}"
 
 
+#: Odometry readings a graph turns into noise densities: (channel, column, the graph setting of its rate).
+ODOMETRY_READINGS: tuple[tuple[str, str, str], ...] = (("wheel", "speed_mps", "wheel_rate_hz"), ("imu", "yaw_rate_radps", "imu_rate_hz"))
+#: A channel whose readings are new at under this share of its row rate is said to repeat them.
+HELD_READINGS_SHARE = 0.5
+
+
+def new_reading_rate_hz(t_s: np.ndarray, values: np.ndarray) -> tuple[float, float] | None:
+    """A channel's row rate and its rate of new readings, Hz; None with too few rows.
+
+    The row rate is 1 / the median interval between rows (what a graph
+    estimator takes the sample rate to be). A reading repeated over
+    several rows (a logger that holds the last commanded speed, MRCLAM's
+    odometry) is new once per run of identical values: the rate of new
+    readings is the row rate over the median run length (the median, so
+    that a standstill's one long run of zeros does not count).
+    """
+    if len(t_s) < 3:
+        return None
+    dt = float(np.median(np.diff(t_s)))
+    if not dt > 0:
+        return None
+    changes = np.flatnonzero(values[1:] != values[:-1])
+    runs = np.diff(np.concatenate(([-1], changes, [len(values) - 1])))
+    return 1.0 / dt, 1.0 / (dt * float(np.median(runs)))
+
+
+def _held_readings(drive: Drive) -> str | None:
+    said = []
+    for channel, column, setting in ODOMETRY_READINGS:
+        if not drive.has(channel) or column not in drive.channels[channel].columns:
+            continue
+        rates = new_reading_rate_hz(drive.channels[channel].t_s, drive.channels[channel].columns[column])
+        if rates is not None and rates[1] < HELD_READINGS_SHARE * rates[0]:
+            said.append(f"{channel}.{column} has {rates[0]:.1f} rows/s but {rates[1]:.1f} new readings/s "
+                        f"(--set {setting}={rates[1]:.3g} makes the graphs count those)")
+    if not said:
+        return None
+    return ("readings repeat over several rows, and the graph estimators take each row's error as independent, "
+            "so their odometry covariance is too small: " + "; ".join(said))
+
+
 @dataclass(frozen=True)
 class DriveRule:
     """One rule a drive is checked against (:data:`DRIVE_RULES`).
@@ -687,6 +728,8 @@ DRIVE_RULES: tuple[DriveRule, ...] = (
     DriveRule("sensor-gap", "warning", f"no stretch over {SENSOR_GAP_WARNING_S:g} s without a sensor row", _sensor_gap),
     DriveRule("tag-spread", "warning", "tags are not all at one point", _tags_at_one_point),
     DriveRule("window-span", "warning", "every window overlaps the drive's time span", _window_outside),
+    DriveRule("held-readings", "warning", "the wheel speed and the yaw rate are new readings at least "
+              f"{HELD_READINGS_SHARE:g} times as often as rows come", _held_readings),
     DriveRule("closed-file", "warning", "a recording was closed by its writer, not stopped while it wrote "
               "(graphpos.io.mcap_recorder)", _unclosed_recording),
 )

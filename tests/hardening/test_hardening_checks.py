@@ -82,8 +82,15 @@ def _tags_at_one_point(drive: Drive) -> Drive:
     return drive.replace(tags=TagMap(tags.tag_id, np.full(n, 5.0), np.full(n, 3.0), tags.wall_side, tags.group, tags.layouts))
 
 
+def _wheel_held(drive: Drive) -> Drive:
+    """The wheel speed logged as a logger of commanded speeds does: each reading held over five rows."""
+    wheel = drive.wheel
+    return drive.replace(channels={**drive.channels, "wheel": wheel.replace(speed_mps=np.repeat(wheel.speed_mps[::5], 5)[: len(wheel)])})
+
+
 WARNINGS = {
     "sensor-gap": (_gap, "sensor-gap"),
+    "wheel-held": (_wheel_held, "held-readings"),
     "tags-at-one-point": (_tags_at_one_point, "tag-spread"),
     "compass-at-one-instant": (lambda d: retimed(d, lambda t: np.full(t.size, 3.0), channels={"compass"}), "channel-span"),
     "window-outside": (lambda d: d.replace(windows=(Window("later", 1e5, 1e5 + 1),)), "window-span"),

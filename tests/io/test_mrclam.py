@@ -392,3 +392,15 @@ def test_dataset6_turn_rate_scale(dataset6):
     edges = np.arange(max(truth.t_s[0], imu.t_s[0]), min(truth.t_s[-1], imu.t_s[-1]), 5.0)
     scale, _ = np.polyfit(np.diff(np.interp(edges, imu.t_s, turned)), np.diff(np.interp(edges, truth.t_s, truth.yaw_rad)), 1)
     assert scale == pytest.approx(1.0, abs=0.1)
+
+
+@pytest.mark.parametrize("robot", [1, 4])
+def test_dataset6_held_speeds_are_warned_of(dataset6, robot):
+    """MRCLAM logs each commanded speed over several 100 Hz rows: the drive check says so, with the rate to give."""
+    from graphpos.io.checks import drive_checks, new_reading_rate_hz
+
+    drive = import_mrclam(dataset6, robot)
+    rows_hz, new_hz = new_reading_rate_hz(drive.wheel.t_s, drive.wheel.speed_mps)
+    assert rows_hz == pytest.approx(100.0) and 5.0 < new_hz < 25.0
+    message = {c["name"]: c["message"] for c in drive_checks(drive)}["held-readings"]
+    assert message is not None and f"wheel_rate_hz={new_hz:.3g}" in message and "imu" not in message
