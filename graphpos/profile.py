@@ -195,9 +195,25 @@ class SensorProfile:
         return LinearCalibration(sigma0_m=max(self.range_sigma0_m, 1e-3), sigma_slope=self.range_sigma_slope or 0.0)
 
     def combined(self, later: "SensorProfile") -> "SensorProfile":
-        """This profile followed by ``later`` (found on readings this one had corrected): one profile for raw readings."""
+        """This profile followed by ``later`` (found on readings this one had corrected): one profile for raw readings.
+
+        The corrections compose. The odometry's noise levels do not: each
+        profile fitted them on its own windows of the drive (``source``
+        ``windows``; graph-isam2's online learning fits each on the readings
+        since the last), and a sensor's noise is one level, so the two
+        variances are pooled, weighed by their windows.
+        """
+        noise = {}
+        mine, theirs = int(self.source.get("windows", 0)), int(later.source.get("windows", 0))
+        if mine > 0 and theirs > 0:
+            for name in ("heading_noise_radps_per_sqrt_s", "turn_scale_density_per_sqrt_s"):
+                a, b = getattr(self, name), getattr(later, name)
+                if a is not None and b is not None:
+                    noise[name] = math.sqrt((mine * a**2 + theirs * b**2) / (mine + theirs))
+            noise["source"] = {**later.source, "windows": mine + theirs}
         return dataclasses.replace(
             later,
+            **noise,
             gyro_bias_radps=self.gyro_bias_radps + self.yaw_rate_scale * later.gyro_bias_radps,
             yaw_rate_scale=self.yaw_rate_scale * later.yaw_rate_scale,
             wheel_scale=self.wheel_scale * later.wheel_scale,

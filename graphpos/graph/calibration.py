@@ -474,7 +474,9 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
     The solved trajectory's own jitter adds to the turn residuals, so the noise
     levels err on the large side (a conservative covariance). The odometry
     terms use the keyframes after ``since_keyframe`` (online learning: the
-    readings since the last correction, so the result corrects that one).
+    readings since the last correction, so the result corrects that one;
+    its noise levels are pooled with the earlier learnings' by
+    :meth:`~graphpos.profile.SensorProfile.combined`).
     """
     from graphpos.profile import SensorProfile
 

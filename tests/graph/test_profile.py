@@ -70,6 +70,17 @@ def test_bearing_term_corrects_only_readings_with_a_bearing(biased_drive):
     assert p.corrected_values("rfid", row)["range_m"] == pytest.approx((4.0 + 1.5 * 0.16 - 0.1) / 1.05)
 
 
+def test_noise_levels_found_on_separate_windows_are_pooled():
+    """Corrections compose; the noise of one sensor is one level, each learning having seen its own windows."""
+    first = SensorProfile(heading_noise_radps_per_sqrt_s=0.01, turn_scale_density_per_sqrt_s=0.02, source={"windows": 30})
+    later = SensorProfile(heading_noise_radps_per_sqrt_s=0.03, turn_scale_density_per_sqrt_s=0.02, source={"windows": 10, "drive": "d"})
+    both = first.combined(later)
+    assert both.heading_noise_radps_per_sqrt_s == pytest.approx(math.sqrt((30 * 0.01**2 + 10 * 0.03**2) / 40))
+    assert both.turn_scale_density_per_sqrt_s == pytest.approx(0.02)
+    assert both.source == {"windows": 40, "drive": "d"}
+    assert SensorProfile().combined(later) == later  # nothing learnt before: the later levels as found
+
+
 def test_profile_file_round_trip_and_refusals(tmp_path):
     p = SensorProfile(gyro_bias_radps=0.001, range_scale=1.07, range_sigma0_m=0.5, source={"drive": "x"})
     p.save(tmp_path / "p.json")
