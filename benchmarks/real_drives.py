@@ -186,15 +186,9 @@ def _has_setting(name: str, key: str) -> bool:
 
 def new_reading_rates(drive) -> dict[str, str]:
     """The rate settings the drive check ``held-readings`` suggests: each odometry channel that repeats its readings."""
-    from graphpos.io.checks import HELD_READINGS_SHARE, ODOMETRY_READINGS, new_reading_rate_hz
+    from graphpos.io.checks import held_readings
 
-    out = {}
-    for channel, column, setting in ODOMETRY_READINGS:
-        if drive.has(channel) and column in drive.channels[channel].columns:
-            rates = new_reading_rate_hz(drive.channels[channel].t_s, drive.channels[channel].columns[column])
-            if rates is not None and rates[1] < HELD_READINGS_SHARE * rates[0]:
-                out[setting] = f"{rates[1]:.3g}"
-    return out
+    return {setting: f"{new_hz:.3g}" for _, _, setting, _, new_hz in held_readings(drive)}
 
 
 def main(argv=None) -> int:

@@ -671,15 +671,26 @@ def new_reading_rate_hz(t_s: np.ndarray, values: np.ndarray) -> tuple[float, flo
     return 1.0 / dt, 1.0 / (dt * float(np.median(runs)))
 
 
-def _held_readings(drive: Drive) -> str | None:
-    said = []
+def held_readings(drive: Drive) -> list[tuple[str, str, str, float, float]]:
+    """The odometry channels of ``drive`` that repeat their readings: ``(channel, column, rate setting, rows/s, new readings/s)``.
+
+    A channel repeats them when its new readings come at under
+    :data:`HELD_READINGS_SHARE` of its row rate (:func:`new_reading_rate_hz`).
+    """
+    held = []
     for channel, column, setting in ODOMETRY_READINGS:
         if not drive.has(channel) or column not in drive.channels[channel].columns:
             continue
         rates = new_reading_rate_hz(drive.channels[channel].t_s, drive.channels[channel].columns[column])
         if rates is not None and rates[1] < HELD_READINGS_SHARE * rates[0]:
-            said.append(f"{channel}.{column} has {rates[0]:.1f} rows/s but {rates[1]:.1f} new readings/s "
-                        f"(--set {setting}={rates[1]:.3g} makes the graphs count those)")
+            held.append((channel, column, setting, *rates))
+    return held
+
+
+def _held_readings(drive: Drive) -> str | None:
+    said = [f"{channel}.{column} has {rows_hz:.1f} rows/s but {new_hz:.1f} new readings/s "
+            f"(--set {setting}={new_hz:.3g} makes the graphs count those)"
+            for channel, column, setting, rows_hz, new_hz in held_readings(drive)]
     if not said:
         return None
     return ("readings repeat over several rows, and the graph estimators take each row's error as independent, "
