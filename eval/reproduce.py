@@ -715,14 +715,58 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
     return Outcome(results, folder)
 
 
-def _ordering(exp: Experiment, rms: dict[Row, float]) -> tuple[list[str], str]:
-    """The published order of the paper's rows (lowest RMS first) and whether ours keeps it."""
+#: A reversed ordering is "within the seeds' spread" when its paired mean difference is under this many standard errors.
+ORDERING_NOISE_SE = 2.0
+
+
+def _ordering(exp: Experiment, rms: dict[Row, float], per_seed: dict[Row, list[float]] | None = None) -> tuple[list[str], str]:
+    """The published order of the paper's rows (lowest RMS first) and whether ours keeps it.
+
+    Where it does not, each published pair ours reverses is named with its
+    paired difference over the seeds (``per_seed``: each row's RMS on the
+    same drives, in the same order): mean +- standard error, and whether the
+    reversal is within the seeds' spread (under :data:`ORDERING_NOISE_SE`
+    standard errors), which more seeds may settle either way, or beyond it.
+    """
     rows = [r for r in exp.rows if r.published]
     published = [r.label for r in sorted(rows, key=lambda r: r.published[1])]
     if any(not np.isfinite(rms[r]) for r in rows):
         return published, "–"
     ours = [r.label for r in sorted(rows, key=lambda r: rms[r])]
-    return published, "yes" if ours == published else "no: " + " < ".join(ours)
+    if ours == published:
+        return published, "yes"
+    notes = []
+    for better in rows:
+        for worse in rows:
+            if better.published[1] < worse.published[1] and rms[better] > rms[worse]:
+                notes.append(_reversal(better, worse, rms, per_seed))
+    return published, "no: " + " < ".join(ours) + "".join(f"; {n}" for n in notes)
+
+
+def paired_difference(a: list[float], b: list[float]) -> tuple[float, float, int]:
+    """Mean and standard error of ``a - b`` over the seeds both have a finite figure for, and how many (SE NaN under 2)."""
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        return math.nan, math.nan, 0
+    se = float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size >= 2 else math.nan
+    return float(d.mean()), se, int(d.size)
+
+
+def reversal_verdict(mean: float, se: float) -> str:
+    """Whether a paired difference is within the seeds' spread (:data:`ORDERING_NOISE_SE`) or beyond it."""
+    return "within the seeds' spread" if abs(mean) < ORDERING_NOISE_SE * se else "beyond the seeds' spread"
+
+
+def _reversal(better: Row, worse: Row, rms: dict[Row, float], per_seed: dict[Row, list[float]] | None) -> str:
+    """``better`` (published) behind ``worse`` on ours: by how much, paired over the seeds, and whether beyond their spread."""
+    text = f"{better.label} behind {worse.label} by {rms[better] - rms[worse]:.2f} m"
+    if not per_seed or len(per_seed.get(better, [])) != len(per_seed.get(worse, [])):
+        return text
+    mean, se, n = paired_difference(per_seed[better], per_seed[worse])
+    if n < 2:
+        return text + " (one seed: no spread to judge)"
+    return f"{better.label} behind {worse.label} by {mean:.2f} ± {se:.2f} m (paired over {n} seeds: {reversal_verdict(mean, se)})"
 
 
 def _fill_summary(sec, exps: list[Experiment], res: dict, sources: dict[str, dict[str, list[SimSource]]],
@@ -734,11 +778,13 @@ def _fill_summary(sec, exps: list[Experiment], res: dict, sources: dict[str, dic
     for exp in exps:
         rms = {p: {r: mean_stat(_results(res, sources[exp.key][p], r), exp.window, "rms_m")
                    for r in exp.all_rows()} for p in profiles}
+        per_seed = {p: {r: [window_stat(res[k], exp.window, "rms_m") if (k := _row_key(s, r)) in res else math.nan
+                            for s in sources[exp.key][p]] for r in exp.rows} for p in profiles}
         line = [exp.title, window_name(exp.window)]
         published = []
         holds = {}
         for p in profiles:
-            published, holds[p] = _ordering(exp, rms[p])
+            published, holds[p] = _ordering(exp, rms[p], per_seed[p])
             if not sources[exp.key][p]:
                 holds[p] = NOT_RUN
         line.append(" < ".join(published))

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import json
+import math
 
+import numpy as np
 import pytest
 
 from eval import reproduce as reproduce_module
@@ -97,7 +99,23 @@ def test_display_names_and_verdicts():
     exp = Experiment(key="k", paper="p", title="t", scenario="paper-straight",
                      rows=(Row("a", "A", (1.0, 1.0)), Row("b", "B", (2.0, 2.0))))
     assert reproduce_module._ordering(exp, {exp.rows[0]: 0.5, exp.rows[1]: 0.7}) == (["A", "B"], "yes")
-    assert reproduce_module._ordering(exp, {exp.rows[0]: 0.9, exp.rows[1]: 0.7})[1] == "no: B < A"
+    assert reproduce_module._ordering(exp, {exp.rows[0]: 0.9, exp.rows[1]: 0.7})[1] == "no: B < A; A behind B by 0.20 m"
+
+
+def test_a_reversed_ordering_says_whether_the_seeds_settle_it():
+    a, b = Row("a", "A", (1.0, 1.0)), Row("b", "B", (2.0, 2.0))
+    exp = Experiment(key="k", paper="p", title="t", scenario="paper-straight", rows=(a, b))
+    # A behind B on every seed by about 0.2 m: beyond the spread
+    steady = {a: [1.2, 1.3, 1.1, 1.25], b: [1.0, 1.1, 0.9, 1.05]}
+    verdict = reproduce_module._ordering(exp, {r: float(np.mean(v)) for r, v in steady.items()}, steady)[1]
+    assert verdict == "no: B < A; A behind B by 0.20 ± 0.00 m (paired over 4 seeds: beyond the seeds' spread)"
+    # behind on the mean only because of one seed: within the spread
+    noisy = {a: [1.0, 1.0, 2.5, 1.0], b: [1.3, 1.2, 1.0, 1.4]}
+    verdict = reproduce_module._ordering(exp, {r: float(np.mean(v)) for r, v in noisy.items()}, noisy)[1]
+    assert verdict.startswith("no: B < A; A behind B by 0.15 ± ") and verdict.endswith("(paired over 4 seeds: within the seeds' spread)")
+    # a failed run leaves its seed out of the pairing; one seed left cannot be judged
+    one = {a: [1.5, math.nan], b: [1.0, 1.0]}
+    assert reproduce_module._ordering(exp, {a: 1.5, b: 1.0}, one)[1] == "no: B < A; A behind B by 0.50 m (one seed: no spread to judge)"
 
 
 def test_route_frame_of_an_offset_track(make_drive):
