@@ -118,6 +118,8 @@ PROFILE_TEXT = {
 }
 #: A published RMS "matches" when ours is within this fraction of it.
 MATCH_TOLERANCE = 0.30
+#: A reversed ordering is "within the seeds' spread" when its paired mean difference is under this many standard errors.
+ORDERING_NOISE_SE = 2.0
 
 _RunKey = tuple  # (SimSource or "plaza" or "mrclam/<robot>", estimator, layout, held: see Row.held)
 
@@ -715,10 +717,6 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
     return Outcome(results, folder)
 
 
-#: A reversed ordering is "within the seeds' spread" when its paired mean difference is under this many standard errors.
-ORDERING_NOISE_SE = 2.0
-
-
 def _ordering(exp: Experiment, rms: dict[Row, float], per_seed: dict[Row, list[float]] | None = None) -> tuple[list[str], str]:
     """The published order of the paper's rows (lowest RMS first) and whether ours keeps it.
 
@@ -810,7 +808,10 @@ def _fill_summary(sec, exps: list[Experiment], res: dict, sources: dict[str, dic
     sec.text("How many published RMS figures ours match within "
              f"±{MATCH_TOLERANCE:.0%} (mean over seeds, each table's window): "
              + "; ".join(f"{p} profile {m[0]} of {m[1]}" for p, m in matched.items())
-             + ". An ordering holds when our RMS ranks the paper's estimators of a table as the paper does.")
+             + ". An ordering holds when our RMS ranks the paper's estimators of a table as the paper does. Where "
+               "it does not, the cell names each pair reversed with its difference paired over the same seeds "
+               f"(mean ± standard error) and whether that is within the seeds' spread (under {ORDERING_NOISE_SE:g} "
+               "standard errors: a tie that more seeds may settle either way) or beyond it.")
     sec.table(["table", "window", "published order (lowest RMS first)", *[f"order holds, {p}" for p in profiles],
                *[f"RMS within ±{MATCH_TOLERANCE:.0%}, {p}" for p in profiles]], order_rows,
               caption="Orderings and matches per table")
