@@ -759,7 +759,7 @@ def reversal_verdict(mean: float, se: float) -> str:
 def _reversal(better: Row, worse: Row, rms: dict[Row, float], per_seed: dict[Row, list[float]] | None) -> str:
     """``better`` (published) behind ``worse`` on ours: by how much, paired over the seeds, and whether beyond their spread."""
     text = f"{better.label} behind {worse.label} by {rms[better] - rms[worse]:.2f} m"
-    if not per_seed or len(per_seed.get(better, [])) != len(per_seed.get(worse, [])):
+    if per_seed is None:
         return text
     mean, se, n = paired_difference(per_seed[better], per_seed[worse])
     if n < 2:
