@@ -152,6 +152,9 @@ def test_bad_config_and_missing_channels_are_clear_errors():
     only_tags = drive.replace(channels={"rfid": drive.rfid})
     with pytest.raises(MissingChannelError):
         run("graph-batch", only_tags)
+    gyro_and_tags = drive.replace(channels={k: v for k, v in drive.channels.items() if k != "wheel"})
+    with pytest.raises(MissingChannelError, match="planar graph needs wheel speed"):  # no velocity to carry it between ranges
+        run("graph-isam2", gyro_and_tags)
 
 
 def test_optimiser_failure_is_an_estimation_error():
