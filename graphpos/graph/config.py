@@ -180,7 +180,9 @@ class GraphConfig:
         latency; :func:`~graphpos.graph.calibration.estimate_range_delay`)
         and moves the readings back by it. ``auto``: its self-calibration
         turns it on for its final solve (its first, with loosened odometry,
-        hardly tells a delay from a track that lags) and puts what it finds
+        hardly tells a delay from a track that lags) when the drive has wheel
+        speed (without one, the IMU's velocity absorbs a shift of the readings
+        in time), and puts what it finds
         in the profile
         (``range_delay_s``), which corrects the readings' times for every
         estimator.
