@@ -94,7 +94,10 @@ class _GraphEstimator(Estimator):
             # on a 5 m/s synthetic drive, causal RMS 14 m with a claimed 0.6 m
             raise MissingChannelError(f"{self.name}: the planar graph needs wheel speed (it has no velocity of its own); drive "
                                       f"'{drive.name}' has none: use accelerometers (parameterisation='inertial') or graph-ranges")
-        self.builder = GraphBuilder(self.config, self.model, drive, range_models, initial_pose=self.start_pose(drive), **self._builder_options())
+        uncalibrated = self.config.range_scale == "estimate" or (
+            self.config.range_scale == "auto" and self.range_model is None and self.profile is None)
+        self.builder = GraphBuilder(self.config, self.model, drive, range_models, initial_pose=self.start_pose(drive),
+                                    scale_ranges_at_start=uncalibrated, **self._builder_options())
         self.smoother = self._make_smoother(self.model.name)
         self.rows: list[OutputRow] = []
         self.update_times_s: list[float] = []

@@ -29,6 +29,21 @@ def test_scale_recovered_on_a_long_reading_radio():
     assert rms(position_errors(drive, calibrated)) < 0.85 * rms(position_errors(drive, plain))
 
 
+@pytest.mark.parametrize("parameterisation", ["planar", "inertial"])
+def test_graph_fixed_lag_scales_its_ranges_by_the_start_s_scale(parameterisation):
+    """graph-fixed-lag learns no profile: with no range model or profile given, the ranges' common scale that
+    ignition solved with the start (ranges 7 % long here) corrects every range from then on, as in the filters;
+    range_scale="off", or a range model given (the test above), leaves them."""
+    beacons = [(-30.0, 40.0, 1), (60.0, 40.0, 1), (-30.0, -40.0, -1), (60.0, -40.0, -1)]  # Plaza-like: ranges of 30-70 m
+    drive = synthetic_drive(40, seed=13, turn_radps=0.05, range_scale=1.07, beacons=beacons, max_range_m=100.0, speed_mps=2.0)
+    runs = {}
+    for mode in ("auto", "off"):
+        config = GraphConfig(parameterisation=parameterisation, range_scale=mode, **SYNTHETIC_MODEL)
+        runs[mode] = ESTIMATORS["graph-fixed-lag"](config).run(drive.without_truth())
+    assert runs["auto"].diagnostics["start"]["range_scale"] == pytest.approx(1.07, abs=0.01)
+    assert rms(position_errors(drive, runs["auto"])) < 0.75 * rms(position_errors(drive, runs["off"]))
+
+
 @pytest.mark.parametrize("minimum", [0.93, 1.0, 1.07, 1.2])
 def test_profile_minimum_finds_the_vertex_in_few_solves(minimum):
     """The successive-parabola search (issue 19: it replaced a 14-solve Brent search) on a quartic-tailed bowl."""
