@@ -95,7 +95,7 @@ def _profile_transfer(sources: tuple[int, ...], robots: tuple[int, ...], setting
     if not drives:
         print("MRCLAM data not found under", DATA, file=sys.stderr)
         return 1
-    profiles = {r: _profile_of(d, settings_of(d, "graph-batch")) for r, d in drives.items() if r in robots or r in sources}
+    profiles = {r: _profile_of(d, settings_of(d, "graph-batch")) for r, d in drives.items()}
     ratios: dict[tuple[int, int], float] = {}
     print(f"{'drive':<28}{'estimator':<14}{'profile of':>11}{'own rms_m':>10}{'anees':>8}{'given rms_m':>12}{'anees':>8}{'rms ratio':>10}")
     for r in robots:

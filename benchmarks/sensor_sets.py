@@ -24,24 +24,17 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from eval.execution import Job, SimSource, run_job  # noqa: E402
 from graphpos.registry import estimator_classes  # noqa: E402
+from paper_profile import parse_seeds  # noqa: E402  (this script's folder is on the path)
 
 DEFAULT_SETS = ("imu,rfid", "wheel,rfid", "imu,compass,rfid", "wheel,compass,rfid", "imu,wheel,rfid", "imu,wheel,compass,rfid")
 #: Marked as poor beyond these (in the tunnel).
 POOR_RMS_M, POOR_ANEES = 1.0, 30.0
 
 
-def seeds_of(text: str) -> list[int]:
-    out: list[int] = []
-    for part in text.split(","):
-        lo, _, hi = part.partition("-")
-        out += list(range(int(lo), int(hi or lo) + 1))
-    return out
-
-
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sets", default=";".join(DEFAULT_SETS), help="sensor sets, ';'-separated (default: %(default)s)")
-    p.add_argument("--seeds", type=seeds_of, default=[0, 1], help="e.g. 0-4 (default 0-1)")
+    p.add_argument("--seeds", type=parse_seeds, default=(0, 1), help="e.g. 0-4 (default 0-1)")
     p.add_argument("--profile", default="realistic")
     args = p.parse_args(argv)
     failed = poor = 0
