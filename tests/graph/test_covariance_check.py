@@ -9,16 +9,40 @@ from graph_drives import mrclam_drive, synthetic_drive
 from eval.metrics import evaluate_estimate
 from graphpos.graph import ESTIMATORS
 from graphpos.graph.config import GraphConfig
+from graphpos.graph.estimators import difference_nees
 
 
 def _run(drive, **config):
     return ESTIMATORS["graph-isam2"](GraphConfig(learn_online=False, **config)).run(drive.without_truth())
 
 
+@pytest.mark.parametrize("scale", [1.0, 4.0])
+def test_the_check_statistic_averages_two_times_the_true_over_the_model_variance(scale):
+    """Seeded Monte Carlo: a smoothed error with covariance S and, independent of it, a difference with
+    covariance P - S (what a consistent smoother gives), both scaled by ``scale``: ``d' (P - S)^-1 d`` averages
+    2 * scale. ``d' P^-1 d`` (the check before) averages less: it ignores what the smoothed estimate shares."""
+    rng = np.random.default_rng(7)
+    causal = np.array([[0.5, 0.1], [0.1, 0.2]])
+    smoothed = np.array([[0.2, 0.02], [0.02, 0.15]])
+    d = rng.multivariate_normal(np.zeros(2), scale * (causal - smoothed), size=20000)
+    q = np.array([difference_nees(x, causal, smoothed) for x in d])
+    assert q.mean() == pytest.approx(2.0 * scale, rel=0.03)
+    naive = np.einsum("ni,ij,nj->n", d, np.linalg.inv(causal), d)
+    assert naive.mean() < 0.75 * q.mean()
+
+
+def test_the_check_statistic_discounts_directions_the_smoothing_did_not_improve():
+    """A smoothed covariance as large as the causal one (nothing learnt since): the difference is weighed as if
+    a tenth of the variance were removed, never divided by zero; a non-positive causal covariance gives NaN."""
+    causal = np.diag([0.4, 0.4])
+    assert difference_nees(np.array([0.2, 0.0]), causal, causal) == pytest.approx(0.2**2 / 0.4 / 0.1)
+    assert np.isnan(difference_nees(np.array([0.2, 0.0]), np.zeros((2, 2)), causal))
+
+
 def test_an_overconfident_model_gets_wider_ellipses_and_the_same_track():
     """Ranges declared five times more precise than the default (``range_sigma_scale`` 0.3 for 1.5): the causal
     rows depart from the smoothed track by more than their covariance says, and the check widens the
-    covariances to come (measured on this drive: factor up to 4.3, ANEES 6.1 -> 4.1); the positions are those of
+    covariances to come (measured on this drive: factor up to 5.5, ANEES 6.1 -> 3.8); the positions are those of
     the unchecked run, bit for bit, and no row's ellipse shrinks."""
     drive = synthetic_drive(120, seed=0, turn_radps=0.05)
     checked = _run(drive, range_sigma_scale=0.3)
@@ -49,8 +73,8 @@ def test_a_consistent_model_keeps_its_ellipses():
 @pytest.mark.slow
 def test_mrclam_robot2_online_ellipses_near_consistent():
     """MRCLAM6 robot 2, truth hidden, default settings: graph-isam2's causal rows were 3-4 times further off
-    than their ellipses said (ANEES 22.0); widened by the check, ANEES 4.7 (robots 1-5: 61, 22, 110, 73, 55
-    -> 11.6, 4.7, 13.6, 11.5, 6.5; Plaza1 1.02 unchanged). The track is unchanged (RMS 0.279 m)."""
+    than their ellipses said (ANEES 22.0); widened by the check, ANEES 2.2 (robots 1-5: 61, 22, 110, 73, 55
+    -> 10.5, 2.2, 8.9, 6.0, 3.2; Plaza1 1.05). The track is unchanged (RMS 0.284 m)."""
     drive = mrclam_drive(2)
     est = ESTIMATORS["graph-isam2"]().run(drive.without_truth())
     whole = evaluate_estimate(drive, est)["windows"]["whole"]
