@@ -36,7 +36,7 @@ def require_known(names: list[str]) -> dict[str, type[Estimator]]:
     return {n: classes[n] for n in names}
 
 
-def make_estimator(name: str, settings: dict[str, str] | None = None, **kwargs) -> Estimator:
+def make_estimator(name: str, settings: dict[str, Any] | None = None, **kwargs) -> Estimator:
     """Build an estimator by name; a clear error for an unknown one.
 
     Parameters
@@ -44,8 +44,8 @@ def make_estimator(name: str, settings: dict[str, str] | None = None, **kwargs) 
     name : str
         Registry name.
     settings : dict, optional
-        ``{key: value text}`` applied to its default config
-        (:func:`graphpos.settings.apply_settings`).
+        ``{key: value text}`` (or the value itself: ``False``, ``7``)
+        applied to its default config (:func:`graphpos.settings.apply_settings`).
     **kwargs
         Passed to the estimator class: ``layout``, ``range_model``,
         ``initial_pose`` (a :class:`graphpos.ignition.StartPose`), ``config``

@@ -71,12 +71,23 @@ def parse_settings(items: list[str], names: list[str], configs: dict[str, Any]) 
     return out
 
 
-def apply_settings(config: Any, settings: dict[str, str], owner: str) -> Any:
+def as_text(value: Any) -> str:
+    """A setting's value as it is typed on the command line (tuples comma-separated, rows by semicolons)."""
+    if isinstance(value, tuple):
+        rows = any(isinstance(v, tuple) for v in value)
+        return (";" if rows else ",").join(as_text(v) for v in value)
+    return "none" if value is None else str(value)
+
+
+def apply_settings(config: Any, settings: dict[str, Any], owner: str) -> Any:
     """A copy of ``config`` with each text setting converted to its field's type.
 
+    From Python a value may be given instead of text (``False``, ``7``,
+    ``(0.9, 1.1)``): it is read as its text (:func:`as_text`).
     ``owner`` (the estimator's name) prefixes error messages.
     """
-    for key, text in settings.items():
+    for key, value in settings.items():
+        text = value if isinstance(value, str) else as_text(value)
         if not _has_setting(config, key):
             raise ConfigError(f"{owner} has no setting '{key}' (its settings: {', '.join(setting_names(config))})")
         try:

@@ -6,7 +6,7 @@ import pytest
 
 from graphpos.errors import ConfigError
 from graphpos.registry import estimator_classes, make_estimator
-from graphpos.settings import apply_settings, parse_settings, setting_names
+from graphpos.settings import apply_settings, as_text, parse_settings, setting_names
 
 
 def defaults(*names: str) -> dict:
@@ -79,11 +79,16 @@ def test_bad_values_are_config_errors(name, key, text, message):
         make_estimator(name, settings={key: text})
 
 
-def _as_text(value) -> str:
-    if isinstance(value, tuple):
-        rows = any(isinstance(v, tuple) for v in value)
-        return (";" if rows else ",").join(_as_text(v) for v in value)
-    return "none" if value is None else str(value)
+def test_python_values_are_taken_as_their_text():
+    """From Python, a setting may be given as a value rather than text: the same config as the text gives,
+    and a value of the wrong kind is a ConfigError (it was an AttributeError)."""
+    graph = defaults("graph-isam2")["graph-isam2"]
+    given = {"learn_online": False, "batch_max_iterations": 7, "fixed_lag_s": 12.5, "range_scale_bounds": (0.9, 1.1)}
+    assert apply_settings(graph, given, "graph-isam2") == apply_settings(graph, {k: as_text(v) for k, v in given.items()}, "graph-isam2")
+    imm = defaults("imm-stekf")["imm-stekf"]
+    assert apply_settings(imm, {"markov": ((0.8, 0.2), (0.3, 0.7))}, "imm-stekf").markov == ((0.8, 0.2), (0.3, 0.7))
+    with pytest.raises(ConfigError, match="expected true or false"):
+        make_estimator("graph-isam2", settings={"learn_online": 3})
 
 
 def _field(config, path: str):
@@ -99,6 +104,6 @@ def test_every_setting_round_trips_through_text(name):
     assert setting_names(config)
     for key in setting_names(config):
         value = _field(config, key)
-        again = apply_settings(config, {key: _as_text(value)}, name)
+        again = apply_settings(config, {key: as_text(value)}, name)
         assert again == config, key
         assert type(_field(again, key)) is type(value), key
