@@ -231,10 +231,11 @@ class GraphConfig:
         causal history and correct the readings still to come
         (:class:`~graphpos.graph.estimators.GraphIsam2`).
     covariance_check : bool
-        ``graph-isam2``: widen the causal covariances by how far its causal
-        rows turned out from its smoothed estimate of them
-        (:meth:`~graphpos.graph.estimators.GraphIsam2._check_covariance`);
-        False: the model's covariance as it is.
+        ``graph-isam2`` and ``graph-fixed-lag``: widen the causal
+        covariances by how far the causal rows turned out from the
+        smoother's later estimate of them (``_check_covariance`` in
+        :mod:`graphpos.graph.estimators`); False: the model's covariance as
+        it is.
     calibration_odometry_factor : float
         Factor on the heading noise densities (``heading_drift_sigma_radps``,
         ``turn_scale_density_per_sqrt_s``) of the first solve.

@@ -82,6 +82,10 @@ class _GraphEstimator(Estimator):
         for at least a late reading's delay (:meth:`GraphBuilder._release`)."""
         return window_s - self.config.max_delay_s - 1.0 / self.config.keyframe_rate_hz
 
+    #: Whether the causal rows' covariances are checked against the smoother's later estimate of them
+    #: (:meth:`_check_covariance`; ``config.covariance_check`` turns it off).
+    checks_covariance = False
+
     # -- online ---------------------------------------------------------------
     def start(self, drive: Drive) -> None:
         range_models = reading_models(drive, self.resolved_range_model(drive), self.name) if drive.has("rfid") else {}
@@ -102,6 +106,11 @@ class _GraphEstimator(Estimator):
         self.rows: list[OutputRow] = []
         self.update_times_s: list[float] = []
         self._drive_name = drive.name
+        self._unchecked: collections.deque[tuple[int, float, float, np.ndarray, KeyframeState]] = collections.deque()  # rows not yet checked
+        self._checked: collections.deque[tuple[float, float]] = collections.deque()  # (t_s, d' (P - S)^-1 d) of the checked rows
+        self._next_check_s = -math.inf
+        self._covariance_scale = 1.0
+        self._scales: list[float] = []
 
     def process(self, measurement: Measurement) -> list[OutputRow]:
         return self._apply(self.builder.add(measurement))
@@ -134,7 +143,64 @@ class _GraphEstimator(Estimator):
                 self._update(inc)
                 out.append(self._row(inc.keyframe))
         self.rows.extend(out)
+        if out and self._unchecked:
+            k = self.builder.last_keyframe  # every closed keyframe is in the smoother now
+            if self.builder.keyframe_time(k) >= self._next_check_s:
+                self._check_covariance(k)
+                self._next_check_s = self.builder.keyframe_time(k) + self._check_timing_s()[1]
         return out
+
+    def _check_timing_s(self) -> tuple[float, float]:
+        """(lag, period) of the covariance check, s: a row is checked once this much later data has come, every period."""
+        return COVARIANCE_CHECK_LAG_S, COVARIANCE_CHECK_EVERY_S
+
+    def _check_covariance(self, k: int) -> None:
+        """Scale the causal covariances to come by how far recent rows departed from the smoothed track.
+
+        Each causal row (one per :data:`COVARIANCE_CHECK_SPACING_S`) is
+        compared, once :data:`COVARIANCE_CHECK_LAG_S` of later data has
+        come, with the smoother's present estimate of its keyframe (no truth
+        is read). For a consistent model the difference ``d`` of the causal
+        estimate (covariance ``P``) and the smoothed one (``S``) has
+        covariance ``P - S`` (the smoothed error is uncorrelated with the
+        difference), so ``d' (P - S)^-1 d`` averages 2 (east, north) and,
+        where the true errors are ``a`` times the model's covariance, ``2 a``
+        (:func:`difference_nees`). The mean over the rows checked in the
+        last :data:`COVARIANCE_CHECK_WINDOW_S`, halved, is the factor (at
+        least 1) on the covariances output until the next check (every
+        :data:`COVARIANCE_CHECK_EVERY_S`): an a posteriori variance factor.
+        The model's covariance holds only the noise it knows of; on the
+        MRCLAM robots (odometry from commanded speeds, camera range errors
+        that persist for seconds) the causal rows were 3-7 times further off
+        than their ellipses said (ANEES 22-110). Measured against ``P``
+        alone (which ignores what the smoothed estimate shares with the
+        row, and understates the factor) the check left ANEES 4.9-14.1;
+        against ``P - S``, 2.2-10.5 (Plaza1 1.05, simulated drives with a
+        consistent model unchanged; ``benchmarks/real_drives.py -e
+        graph-isam2``). The factor only widens.
+        """
+        cutoff_s = self.builder.keyframe_time(k) - self._check_timing_s()[0]
+        ready = []
+        while self._unchecked and self.builder.keyframe_time(self._unchecked[0][0]) <= cutoff_s:
+            ready.append(self._unchecked.popleft())
+        values = self.smoother.recent() if ready else None
+        for k_row, east_m, north_m, causal, state in ready:
+            key = self.model.pose_key(k_row)
+            if not values.exists(key):
+                continue
+            try:
+                # the marginal's body frame turned by the row's yaw (the builder of a fixed-lag smoother keeps no old states)
+                smoothed = self.model.position_cov(self.smoother.marginal(key), state)
+            except RuntimeError as exc:
+                raise gtsam_error(exc, f"{self.name}: marginal covariance of keyframe {k_row}") from None
+            q = difference_nees(np.array([east_m, north_m]) - self.model.position(values, k_row), causal, smoothed)
+            if math.isfinite(q):
+                self._checked.append((self.builder.keyframe_time(k_row), q))
+        while self._checked and self._checked[0][0] < cutoff_s - COVARIANCE_CHECK_WINDOW_S:
+            self._checked.popleft()
+        if len(self._checked) >= COVARIANCE_CHECK_MIN_ROWS:
+            self._covariance_scale = max(1.0, float(np.mean([x for _, x in self._checked])) / 2.0)
+        self._scales.append(self._covariance_scale)
 
     def _estimates_range_scale(self) -> bool:
         """Whether to self-calibrate the range scale: ``range_scale`` "estimate", or "auto" with
@@ -156,7 +222,8 @@ class _GraphEstimator(Estimator):
         self.update_times_s.append(time.perf_counter() - t)
 
     def _row(self, k: int, state: KeyframeState | None = None) -> OutputRow:
-        """Keyframe ``k``'s output row: ``state`` (default: the one read at its update) and its marginal."""
+        """Keyframe ``k``'s output row: ``state`` (default: the one read at its update) and its marginal,
+        scaled by the last covariance check's factor where the estimator checks (:meth:`_check_covariance`)."""
         state = self.builder.states[k] if state is None else state
         cov = None
         if self.config.output_covariance:
@@ -164,7 +231,14 @@ class _GraphEstimator(Estimator):
                 cov = self.model.position_cov(self.smoother.marginal(self.model.pose_key(k)), state)
             except RuntimeError as exc:
                 raise gtsam_error(exc, f"{self.name}: marginal covariance of keyframe {k}") from None
-        return _output_row(self.builder.keyframe_time(k), state, cov)
+        row = _output_row(self.builder.keyframe_time(k), state, cov)
+        if cov is None or not (self.checks_covariance and self.config.covariance_check):
+            return row
+        if not self._unchecked or row.t_s - self.builder.keyframe_time(self._unchecked[-1][0]) >= COVARIANCE_CHECK_SPACING_S:
+            self._unchecked.append((k, row.east_m, row.north_m, cov, state))
+        if self._covariance_scale == 1.0:
+            return row
+        return dataclasses.replace(row, cov_en_m2=cov * self._covariance_scale)
 
     def finish(self) -> Estimate:
         self._apply(self.builder.flush())
@@ -185,6 +259,10 @@ class _GraphEstimator(Estimator):
             "update_ms_max": float(times.max() * 1e3),
             "range_scale": self.builder.range_scale,
         }
+        if self._scales:
+            scales = np.asarray(self._scales)
+            diagnostics["covariance_scale"] = {"checks": int(scales.size), "mean": float(scales.mean()), "max": float(scales.max()),
+                                               "last": float(scales[-1])}
         return Estimate.from_rows(self.name, rows, rate_hz=self.config.keyframe_rate_hz, diagnostics=diagnostics)
 
 
@@ -249,6 +327,7 @@ class GraphIsam2(_GraphEstimator):
     """
 
     name = "graph-isam2"
+    checks_covariance = True
     summary = "GTSAM iSAM2 factor graph, one update per 10 Hz keyframe; causal output (final=True: smoothed)"
 
     def start(self, drive: Drive) -> None:
@@ -257,84 +336,18 @@ class GraphIsam2(_GraphEstimator):
         self._learnt_k = 0
         self._learning: list[dict] = []
         self._compass_seen: tuple[float, float] | None = None  # the total compass bias the last learning found, and its sigma
-        self._unchecked: collections.deque[tuple[int, float, float, np.ndarray]] = collections.deque()  # rows not yet checked
-        self._checked: collections.deque[tuple[float, float]] = collections.deque()  # (t_s, d' (P - S)^-1 d) of the checked rows
-        self._next_check_s = -math.inf
-        self._covariance_scale = 1.0
-        self._scales: list[float] = []
 
     def _apply(self, increments: list[Increment]) -> list[OutputRow]:
         out = super()._apply(increments)
         start = self.builder.diagnostics.get("anchor_keyframe")
         if out and start is not None:
             k = self.builder.last_keyframe  # every closed keyframe is in the smoother now
-            if self._unchecked and self.builder.keyframe_time(k) >= self._next_check_s:  # rows with a covariance to check
-                self._check_covariance(k)
-                self._next_check_s = self.builder.keyframe_time(k) + COVARIANCE_CHECK_EVERY_S
             received_s = k * self.builder.period_s  # the held track before the start is data too
             if self._next_learn_s is not None and received_s >= self._next_learn_s:
                 self._learn(k)
                 while received_s >= self._next_learn_s:
                     self._next_learn_s *= 2.0
         return out
-
-    def _row(self, k: int, state: KeyframeState | None = None) -> OutputRow:
-        """The causal row, its covariance scaled by the last check's factor (:meth:`_check_covariance`)."""
-        row = super()._row(k, state)
-        if row.cov_en_m2 is None or not self.config.covariance_check:
-            return row
-        if not self._unchecked or row.t_s - self.builder.keyframe_time(self._unchecked[-1][0]) >= COVARIANCE_CHECK_SPACING_S:
-            self._unchecked.append((k, row.east_m, row.north_m, row.cov_en_m2))
-        if self._covariance_scale == 1.0:
-            return row
-        return dataclasses.replace(row, cov_en_m2=row.cov_en_m2 * self._covariance_scale)
-
-    def _check_covariance(self, k: int) -> None:
-        """Scale the causal covariances to come by how far recent rows departed from the smoothed track.
-
-        Each causal row (one per :data:`COVARIANCE_CHECK_SPACING_S`) is
-        compared, once :data:`COVARIANCE_CHECK_LAG_S` of later data has
-        come, with the smoother's present estimate of its keyframe (no truth
-        is read). For a consistent model the difference ``d`` of the causal
-        estimate (covariance ``P``) and the smoothed one (``S``) has
-        covariance ``P - S`` (the smoothed error is uncorrelated with the
-        difference), so ``d' (P - S)^-1 d`` averages 2 (east, north) and,
-        where the true errors are ``a`` times the model's covariance, ``2 a``
-        (:func:`difference_nees`). The mean over the rows checked in the
-        last :data:`COVARIANCE_CHECK_WINDOW_S`, halved, is the factor (at
-        least 1) on the covariances output until the next check (every
-        :data:`COVARIANCE_CHECK_EVERY_S`): an a posteriori variance factor.
-        The model's covariance holds only the noise it knows of; on the
-        MRCLAM robots (odometry from commanded speeds, camera range errors
-        that persist for seconds) the causal rows were 3-7 times further off
-        than their ellipses said (ANEES 22-110). Measured against ``P``
-        alone (which ignores what the smoothed estimate shares with the
-        row, and understates the factor) the check left ANEES 4.9-14.1;
-        against ``P - S``, 2.2-10.5 (Plaza1 1.05, simulated drives with a
-        consistent model unchanged; ``benchmarks/real_drives.py -e
-        graph-isam2``). The factor only widens.
-        """
-        cutoff_s = self.builder.keyframe_time(k) - COVARIANCE_CHECK_LAG_S
-        ready = []
-        while self._unchecked and self.builder.keyframe_time(self._unchecked[0][0]) <= cutoff_s:
-            ready.append(self._unchecked.popleft())
-        values = self.smoother.recent() if ready else None
-        for k_row, east_m, north_m, causal in ready:
-            key = self.model.pose_key(k_row)
-            if not values.exists(key):
-                continue
-            try:
-                smoothed = self.model.position_cov(self.smoother.marginal(key), self.builder.states[k_row])
-            except RuntimeError as exc:
-                raise gtsam_error(exc, f"{self.name}: marginal covariance of keyframe {k_row}") from None
-            q = difference_nees(np.array([east_m, north_m]) - self.model.position(values, k_row), causal, smoothed)
-            if math.isfinite(q):
-                self._checked.append((self.builder.keyframe_time(k_row), q))
-        while self._checked and self._checked[0][0] < cutoff_s - COVARIANCE_CHECK_WINDOW_S:
-            self._checked.popleft()
-        if len(self._checked) >= COVARIANCE_CHECK_MIN_ROWS:
-            self._covariance_scale = max(1.0, float(np.mean([x for _, x in self._checked])) / 2.0)
-        self._scales.append(self._covariance_scale)
 
     def _learn(self, k: int) -> None:
         from graphpos.graph.calibration import estimate_range_scale, fit_profile
@@ -436,10 +449,6 @@ class GraphIsam2(_GraphEstimator):
         est = super()._estimate(rows)
         if getattr(self, "_learning", None):
             est.diagnostics["online_calibration"] = self._learning
-        if getattr(self, "_scales", None):
-            scales = np.asarray(self._scales)
-            est.diagnostics["covariance_scale"] = {"checks": int(scales.size), "mean": float(scales.mean()), "max": float(scales.max()),
-                                                   "last": float(scales[-1])}
         return est
 
     def finish(self) -> Estimate:
@@ -481,10 +490,10 @@ class GraphFixedLag(_GraphEstimator):
     paper drives, beyond the lag too: the window is marginalised in
     batches, :class:`~graphpos.graph.smoothers.FixedLagSmoother`) when
     graph-isam2 learns no profile online (``learn_online=False``, or a
-    sensor profile given); their covariances too until graph-isam2's
-    covariance check first widens its own (:meth:`GraphIsam2._check_covariance`,
-    which compares rows with a smoothed estimate 30 s later: beyond this
-    window). It does not learn one itself: learning solves the
+    sensor profile given); their covariances too until the first
+    covariance check widens either's (:meth:`_check_covariance`: graph-isam2
+    compares its rows with its smoothed estimate 30 s later, this smoother
+    within its window, :meth:`_check_timing_s`). It does not learn one itself: learning solves the
     whole track so far and rebuilds every range factor received
     (:class:`GraphIsam2`), the history a fixed-lag smoother exists not to
     keep. With learning (graph-isam2's default), graph-isam2 departs from
@@ -496,6 +505,16 @@ class GraphFixedLag(_GraphEstimator):
 
     name = "graph-fixed-lag"
     summary = "GTSAM incremental fixed-lag smoother (default 10 s lag), flat cost for hours-long drives; causal output"
+    checks_covariance = True
+
+    def _check_timing_s(self) -> tuple[float, float]:
+        """The check within the window: a row is checked 0.75 windows after it, every 0.1 window, so it is
+        still in the smoother (which keeps a key one window or a little more). A shorter lag says less (the
+        smoothed estimate shares more of the row's error, :data:`COVARIANCE_CHECK_LAG_S`): on MRCLAM6 robots
+        1-5, ANEES 21.9, 94.6, 298.4, 38.4, 30.9 unchecked; 21.2, 26.3, 25.9, 20.3, 18.1 checked 5 s after;
+        19.5, 20.2, 20.4, 17.1, 14.3 checked 7.5 s after (Plaza1 0.31 throughout)."""
+        lag_s, every_s = super()._check_timing_s()
+        return min(lag_s, 0.75 * self.config.fixed_lag_s), min(every_s, 0.1 * self.config.fixed_lag_s)
 
     def _make_smoother(self, model_name: str):
         return FixedLagSmoother(model_name, self.config.fixed_lag_s)
@@ -524,6 +543,7 @@ class GraphFixedLagSmoothed(GraphFixedLag):
 
     name = "graph-fixed-lag-smoothed"
     summary = "GTSAM incremental fixed-lag smoother, smoothed output: each keyframe as it leaves the 10 s window"
+    checks_covariance = False  # its rows are the smoothed estimates the check would compare with
 
     def start(self, drive: Drive) -> None:
         super().start(drive)

@@ -135,6 +135,10 @@ class FixedLagSmoother:
     def estimate(self) -> gtsam.Values:
         return self.smoother.calculateEstimate()
 
+    def recent(self) -> gtsam.Values:
+        """The window's variables (here, all the smoother holds)."""
+        return self.estimate()
+
 
 class WindowedIsam2Smoother(FixedLagSmoother):
     """iSAM2 over the last ``window_s`` of keyframes: graph-isam2's smoother and graph-batch's seeding pass.

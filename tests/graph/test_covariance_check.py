@@ -12,8 +12,8 @@ from graphpos.graph.config import GraphConfig
 from graphpos.graph.estimators import difference_nees
 
 
-def _run(drive, **config):
-    return ESTIMATORS["graph-isam2"](GraphConfig(learn_online=False, **config)).run(drive.without_truth())
+def _run(drive, name="graph-isam2", **config):
+    return ESTIMATORS[name](GraphConfig(learn_online=False, **config)).run(drive.without_truth())
 
 
 @pytest.mark.parametrize("scale", [1.0, 4.0])
@@ -39,14 +39,16 @@ def test_the_check_statistic_discounts_directions_the_smoothing_did_not_improve(
     assert np.isnan(difference_nees(np.array([0.2, 0.0]), np.zeros((2, 2)), causal))
 
 
-def test_an_overconfident_model_gets_wider_ellipses_and_the_same_track():
+@pytest.mark.parametrize("name", ["graph-isam2", "graph-fixed-lag"])
+def test_an_overconfident_model_gets_wider_ellipses_and_the_same_track(name):
     """Ranges declared five times more precise than the default (``range_sigma_scale`` 0.3 for 1.5): the causal
     rows depart from the smoothed track by more than their covariance says, and the check widens the
-    covariances to come (measured on this drive: factor up to 5.5, ANEES 6.1 -> 3.8); the positions are those of
+    covariances to come (measured on this drive: factor up to 5.5, ANEES 6.1 -> 3.8; graph-fixed-lag, checking within
+    its window: up to 3.2, 6.1 -> 3.6); the positions are those of
     the unchecked run, bit for bit, and no row's ellipse shrinks."""
     drive = synthetic_drive(120, seed=0, turn_radps=0.05)
-    checked = _run(drive, range_sigma_scale=0.3)
-    unchecked = _run(drive, range_sigma_scale=0.3, covariance_check=False)
+    checked = _run(drive, name, range_sigma_scale=0.3)
+    unchecked = _run(drive, name, range_sigma_scale=0.3, covariance_check=False)
     assert np.array_equal(checked.east_m, unchecked.east_m) and np.array_equal(checked.north_m, unchecked.north_m)
     factor = checked.cov_en_m2[:, 0, 0] / unchecked.cov_en_m2[:, 0, 0]
     np.testing.assert_allclose(checked.cov_en_m2, factor[:, None, None] * unchecked.cov_en_m2, rtol=1e-12)
@@ -60,12 +62,13 @@ def test_an_overconfident_model_gets_wider_ellipses_and_the_same_track():
     assert anees(checked) < 0.8 * anees(unchecked)
 
 
-def test_a_consistent_model_keeps_its_ellipses():
+@pytest.mark.parametrize("name", ["graph-isam2", "graph-fixed-lag"])
+def test_a_consistent_model_keeps_its_ellipses(name):
     """The default noise levels on the same drive: the rows stay within their ellipses of the smoothed track,
     the factor stays 1 and every covariance is the model's."""
     drive = synthetic_drive(120, seed=0, turn_radps=0.05)
-    checked = _run(drive)
-    unchecked = _run(drive, covariance_check=False)
+    checked = _run(drive, name)
+    unchecked = _run(drive, name, covariance_check=False)
     assert checked.diagnostics["covariance_scale"]["checks"] >= 5
     np.testing.assert_array_equal(checked.cov_en_m2, unchecked.cov_en_m2)
 
