@@ -135,9 +135,9 @@ class FixedLagSmoother:
     def estimate(self) -> gtsam.Values:
         return self.smoother.calculateEstimate()
 
-    def recent(self) -> gtsam.Values:
-        """The window's variables (here, all the smoother holds)."""
-        return self.estimate()
+    def holds(self, key: int) -> bool:
+        """Whether a variable is in the window (not yet marginalised)."""
+        return self.smoother.getISAM2().valueExists(key)
 
 
 class WindowedIsam2Smoother(FixedLagSmoother):
