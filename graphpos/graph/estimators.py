@@ -111,6 +111,9 @@ class _GraphEstimator(Estimator):
         self._next_check_s = -math.inf
         self._covariance_scale = 1.0
         self._scales: list[float] = []
+        # the same, checked COVARIANCE_CHECK_EARLY_LAG_S after them, until the rows above set the factor
+        self._unchecked_early: collections.deque[tuple[int, float, float, np.ndarray, KeyframeState]] = collections.deque()
+        self._checked_early: collections.deque[tuple[float, float]] = collections.deque()
 
     def process(self, measurement: Measurement) -> list[OutputRow]:
         return self._apply(self.builder.add(measurement))
@@ -143,7 +146,7 @@ class _GraphEstimator(Estimator):
                 self._update(inc)
                 out.append(self._row(inc.keyframe))
         self.rows.extend(out)
-        if out and self._unchecked:
+        if out and (self._unchecked or self._unchecked_early):
             k = self.builder.last_keyframe  # every closed keyframe is in the smoother now
             if self.builder.keyframe_time(k) >= self._next_check_s:
                 self._check_covariance(k)
@@ -175,14 +178,31 @@ class _GraphEstimator(Estimator):
         than their ellipses said (ANEES 22-110). Measured against ``P``
         alone (which ignores what the smoothed estimate shares with the
         row, and understates the factor) the check left ANEES 4.9-14.1;
-        against ``P - S``, 2.2-10.5 (Plaza1 1.05, simulated drives with a
+        against ``P - S``, 2.1-9.1 (Plaza1 1.03, simulated drives with a
         consistent model unchanged; ``benchmarks/real_drives.py -e
-        graph-isam2``). The factor only widens.
+        graph-isam2``). Until :data:`COVARIANCE_CHECK_MIN_ROWS` rows have
+        been checked that late, the rows checked
+        :data:`COVARIANCE_CHECK_EARLY_LAG_S` after them set the factor. The
+        factor only widens.
         """
         cutoff_s = self.builder.keyframe_time(k) - self._check_timing_s()[0]
+        self._differences(self._unchecked, cutoff_s, self._checked)
+        while self._checked and self._checked[0][0] < cutoff_s - COVARIANCE_CHECK_WINDOW_S:
+            self._checked.popleft()
+        if self._unchecked_early:
+            self._differences(self._unchecked_early, self.builder.keyframe_time(k) - COVARIANCE_CHECK_EARLY_LAG_S, self._checked_early)
+        if len(self._checked) >= COVARIANCE_CHECK_MIN_ROWS:
+            self._covariance_scale = max(1.0, float(np.mean([x for _, x in self._checked])) / 2.0)
+            self._unchecked_early.clear()
+        elif len(self._checked_early) >= COVARIANCE_CHECK_MIN_ROWS:
+            self._covariance_scale = max(1.0, float(np.mean([x for _, x in self._checked_early])) / 2.0)
+        self._scales.append(self._covariance_scale)
+
+    def _differences(self, unchecked: collections.deque, cutoff_s: float, checked: collections.deque) -> None:
+        """Take the rows of ``unchecked`` up to ``cutoff_s`` and put each one's :func:`difference_nees` in ``checked``."""
         ready = []
-        while self._unchecked and self.builder.keyframe_time(self._unchecked[0][0]) <= cutoff_s:
-            ready.append(self._unchecked.popleft())
+        while unchecked and self.builder.keyframe_time(unchecked[0][0]) <= cutoff_s:
+            ready.append(unchecked.popleft())
         source = self.smoother.source()
         for k_row, east_m, north_m, causal, state in ready:
             key = self.model.pose_key(k_row)
@@ -196,12 +216,7 @@ class _GraphEstimator(Estimator):
                 raise gtsam_error(exc, f"{self.name}: smoothed estimate of keyframe {k_row}") from None
             q = difference_nees(np.array([east_m - now.east_m, north_m - now.north_m]), causal, smoothed)
             if math.isfinite(q):
-                self._checked.append((self.builder.keyframe_time(k_row), q))
-        while self._checked and self._checked[0][0] < cutoff_s - COVARIANCE_CHECK_WINDOW_S:
-            self._checked.popleft()
-        if len(self._checked) >= COVARIANCE_CHECK_MIN_ROWS:
-            self._covariance_scale = max(1.0, float(np.mean([x for _, x in self._checked])) / 2.0)
-        self._scales.append(self._covariance_scale)
+                checked.append((self.builder.keyframe_time(k_row), q))
 
     def _estimates_range_scale(self) -> bool:
         """Whether to self-calibrate the range scale: ``range_scale`` "estimate", or "auto" with
@@ -237,6 +252,8 @@ class _GraphEstimator(Estimator):
             return row
         if not self._unchecked or row.t_s - self.builder.keyframe_time(self._unchecked[-1][0]) >= COVARIANCE_CHECK_SPACING_S:
             self._unchecked.append((k, row.east_m, row.north_m, cov, state))
+            if COVARIANCE_CHECK_EARLY_LAG_S < self._check_timing_s()[0] and len(self._checked) < COVARIANCE_CHECK_MIN_ROWS:
+                self._unchecked_early.append((k, row.east_m, row.north_m, cov, state))
         if self._covariance_scale == 1.0:
             return row
         return dataclasses.replace(row, cov_en_m2=cov * self._covariance_scale)
@@ -809,6 +826,12 @@ COVARIANCE_CHECK_MIN_ROWS = 10
 #: per 0.5 s or one per s; CPU with the check / without, Plaza1 and MRCLAM6 robots 1 and 3: graph-isam2 1.02,
 #: graph-fixed-lag 1.17).
 COVARIANCE_CHECK_SPACING_S = 1.0
+#: Until rows checked :data:`COVARIANCE_CHECK_LAG_S` after them set the factor (40 s after a start), rows checked
+#: this much after them do, s (the lag graph-fixed-lag checks at in its default window). A short lag says less,
+#: but a start's first rows, when learning has seen least, were the most overconfident: graph-isam2 on MRCLAM6
+#: robots 1-5 ANEES 10.5, 2.2, 8.9, 6.0, 3.2 -> 9.1, 2.1, 6.9, 6.0, 3.0 (Plaza1 1.05 -> 1.03); on 150 s pieces
+#: (``benchmarks/real_drives.py --segments 150``) median ANEES 32 -> 17.
+COVARIANCE_CHECK_EARLY_LAG_S = 7.5
 #: Least share of a row's variance, in any direction, that the check's difference is taken to carry
 #: (:func:`difference_nees`): where later data improved a direction by less, the difference says little about it.
 COVARIANCE_CHECK_MIN_SHARE = 0.1
