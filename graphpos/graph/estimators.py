@@ -819,7 +819,7 @@ COVARIANCE_CHECK_LAG_S = 30.0
 #: (mean ANEES 8.7, 7.3, 6.8, 8.5 against 6.2).
 COVARIANCE_CHECK_EVERY_S = 10.0
 COVARIANCE_CHECK_WINDOW_S = 300.0
-#: Fewest checked rows (5 s of them) that set the factor.
+#: Fewest checked rows (10 s of them, :data:`COVARIANCE_CHECK_SPACING_S`) that set the factor.
 COVARIANCE_CHECK_MIN_ROWS = 10
 #: One causal row is checked per this many s: a row's error persists for seconds, and each check costs a
 #: marginal of the smoother, dearer the older its key (MRCLAM6 ANEES the same to 0.1 checking every row, one

@@ -207,10 +207,6 @@ class WindowedIsam2Smoother(FixedLagSmoother):
         """The iSAM2 inside (a reference): its factors, and updates that remove factors."""
         return self.smoother.getISAM2()
 
-    def recent(self) -> gtsam.Values:
-        """The window's variables only (cheap: the marginalised ones are not copied)."""
-        return self.isam.calculateEstimate()
-
     def estimate(self) -> gtsam.Values:
         """Every variable held so far: the window's (fully back-substituted), and each marginalised one as it
         was estimated just before it left, 1-1.1 windows after its time: a smoothed value, for the whole
