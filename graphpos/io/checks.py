@@ -689,12 +689,12 @@ def held_readings(drive: Drive) -> list[tuple[str, str, str, float, float]]:
 
 def _held_readings(drive: Drive) -> str | None:
     said = [f"{channel}.{column} has {rows_hz:.1f} rows/s but {new_hz:.1f} new readings/s "
-            f"(--set {setting}={new_hz:.3g} makes the graphs count those)"
+            f"(--set {setting}={new_hz:.3g} makes the online graphs count those)"
             for channel, column, setting, rows_hz, new_hz in held_readings(drive)]
     if not said:
         return None
-    return ("readings repeat over several rows, and the graph estimators take each row's error as independent, "
-            "so their odometry covariance is too small: " + "; ".join(said))
+    return ("readings repeat over several rows: graph-batch counts each reading once, but the online graphs take each "
+            "row's error as independent, so their odometry covariance is too small: " + "; ".join(said))
 
 
 @dataclass(frozen=True)

@@ -32,36 +32,58 @@ def _held(channel: Channel, column: str, times: int) -> Channel:
     return Channel(channel.kind, {"t_s": fine, column: np.repeat(channel.columns[column], times)})
 
 
-def test_a_given_wheel_rate_is_kept_and_a_held_wheel_is_warned_of():
-    """MRCLAM logs commanded speeds at 100 Hz that change about 11 times a second: the repeats are no new readings.
-
-    Measured on the drive, the row rate makes the wheel 2x too precise here;
-    the rate of new readings, given as ``wheel_rate_hz`` (what the
-    drive check prints), makes the graph what it is on the drive logged
-    once per reading."""
+def _held_drive():
     drive = synthetic_drive(30, seed=3, tag_gap=(40.0, 110.0)).without_truth()  # 14 s on the wheel alone
-    held = drive.replace(channels={**drive.channels, "wheel": _held(drive.channels["wheel"], "speed_mps", 4)})
+    return drive, drive.replace(channels={**drive.channels, "wheel": _held(drive.channels["wheel"], "speed_mps", 4)})
+
+
+def test_a_held_wheel_is_warned_of():
+    """MRCLAM logs commanded speeds at 100 Hz that change about 11 times a second: the drive check says so."""
+    drive, held = _held_drive()
     message = {c["name"]: c["message"] for c in drive_checks(held)}["held-readings"]
     assert message is not None and "--set wheel_rate_hz=100" in message and "400.0 rows/s" in message
     assert {c["name"]: c["message"] for c in drive_checks(drive)}["held-readings"] is None
 
+
+@pytest.mark.parametrize("name", ["graph-isam2", "graph-batch"])
+def test_a_given_wheel_rate_is_kept_and_held_readings_count_once_in_graph_batch(name):
+    """The repeats of a held reading are no new readings, and repeat its error.
+
+    graph-batch counts the new readings by itself: on the drive logged four
+    times over it is what it is on the drive logged once per reading.
+    graph-isam2 counts rows (its own calibration and the profiles it is
+    given are fitted that way, :class:`~graphpos.graph.estimators.GraphBatch`),
+    so there the row rate makes the wheel 2x too precise, until the rate of
+    new readings is given as ``wheel_rate_hz`` (what the drive check prints).
+    """
+    drive, held = _held_drive()
+    # graph-isam2 with its noise levels as configured: neither learnt online nor widened by its check
+    online = {"learn_online": False, "covariance_check": False} if name == "graph-isam2" else {}
+
     def run(d, **config):
-        est = ESTIMATORS["graph-batch"](GraphConfig(parameterisation="planar", **SYNTHETIC_MODEL, **config))
+        est = ESTIMATORS[name](GraphConfig(parameterisation="planar", **SYNTHETIC_MODEL, **online, **config))
         return est, est.run(d)
 
     est_plain, plain = run(drive)
     est_measured, measured = run(held)
     est_given, given = run(held, wheel_rate_hz=100.0)
     assert est_plain.config.wheel_rate_hz == pytest.approx(100.0)
-    assert est_measured.config.wheel_rate_hz == pytest.approx(400.0)
+    assert est_measured.config.wheel_rate_hz == pytest.approx(100.0 if name == "graph-batch" else 400.0)
     assert est_given.config.wheel_rate_hz == 100.0
 
-    def spread(est):  # along-track (east) variance at its largest: in the gap, where the wheel carries the track
-        return float(np.max(est.cov_en_m2[:, 0, 0]))
+    def spread(est):
+        """Along-track (east) variance gained in the gap, where the wheel alone carries the track (after the start's 5 s)."""
+        late = est.t_s > 5.0
+        v = est.cov_en_m2[:, 0, 0]
+        peak = int(np.argmax(np.where(late, v, -np.inf)))
+        return float(v[peak] - v[late & (est.t_s <= est.t_s[peak])].min())
 
     assert spread(given) == pytest.approx(spread(plain), rel=0.05)
     assert np.hypot(given.east_m - plain.east_m, given.north_m - plain.north_m).max() < 0.02
-    assert spread(measured) < 0.85 * spread(plain)
+    if name == "graph-batch":
+        assert spread(measured) == pytest.approx(spread(plain), rel=0.05)
+    else:
+        assert spread(measured) < 0.85 * spread(plain)
 
 
 @pytest.mark.parametrize("rate", [0.0, -5.0, float("nan"), float("inf")])
