@@ -19,7 +19,9 @@ shifted) onto it and released to the smoother with a prior at the
 keyframe of the start, wide (three times ignition's sigmas: the readings
 ignition used are in the graph too) but enough to keep the system
 determinate whatever the readings (never IndeterminantLinearSystem). A
-drive on which ignition never succeeds gives no output.
+drive on which ignition never succeeds gives no output, unless the builder
+may solve the held track itself (``solve_unstarted``, graph-batch: offline,
+the whole track is there): :meth:`GraphBuilder._start_from_graph`.
 
 Gaps (issue 14, item 3): the odometry is the graph's backbone. A wheel
 speed or yaw rate is held (zero-order hold) for at most
@@ -61,9 +63,10 @@ from gtsam.symbol_shorthand import L, R
 from filters.models.angles import wrap_angle
 from graphpos.drive import Channel, Drive, Measurement, RowRun
 from graphpos.graph.config import GraphConfig
-from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState
+from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState, between_walls
 from graphpos.profile import SensorProfile
 from graphpos.graph.models import GRAVITY_MPS2, KeyframeState, robust
+from graphpos.graph.smoothers import ValuesSource
 from graphpos.graph.odometry import OdometryDelta, PlanarOdometry
 from graphpos.ranging.drive_models import ranges_by_field
 from graphpos.standstill import StandstillGyroBias
@@ -82,6 +85,11 @@ START_PRIOR_INFLATION = 3.0
 #: and the graph resolves the heading from every range it holds. On the slow
 #: MRCLAM robots, 5 degrees took 100-400 s of driving (10 degrees: robot 1 still 386 s).
 START_MAX_YAW_SIGMA_RAD = math.radians(15.0)
+#: :meth:`GraphBuilder._start_from_graph`: trial headings, trial positions per heading, and the longest held
+#: track it solves, s (48 solves of a 150 s MRCLAM track took 3-18 s).
+GRAPH_START_HEADINGS = 8
+GRAPH_START_POSITIONS = 6
+GRAPH_START_MAX_TRACK_S = 300.0
 #: The odometry sensors: (channel, field) pairs whose silence ends the track.
 ODOMETRY_SENSORS = (("imu", "yaw_rate_radps"), ("wheel", "speed_mps"))
 _ODOMETRY_FIELD = dict(ODOMETRY_SENSORS)  # one odometry field per channel
@@ -200,6 +208,7 @@ class GraphBuilder:
         initial_pose: StartPose | None = None,
         release_window_s: float = math.inf,
         scale_ranges_at_start: bool = False,
+        solve_unstarted: bool = False,
     ):
         self.config = config
         self.model = model
@@ -210,6 +219,7 @@ class GraphBuilder:
         self.keep_history = keep_history
         self.range_scale = range_scale
         self.scale_ranges_at_start = scale_ranges_at_start
+        self.solve_unstarted = solve_unstarted
         self.range_offset_m = 0.0  # subtracted from recorded readings when the graph is rebuilt (graph-batch's offset search)
         self.range_delay_s = 0.0  # how late the tag readings were stamped: their records moved back by it (graph-batch's search)
         self.initial_pose = initial_pose
@@ -558,6 +568,8 @@ class GraphBuilder:
         if not self.anchored:
             if self._backlog:
                 self._ignite(self.ignition.finish())
+            if self._start is None and self._backlog and self.solve_unstarted:
+                self._ignite(self._start_from_graph())
             if self._start is not None and self._backlog:
                 out.append(self._release(None, self._move_onto_start(self._start)))
             else:
@@ -935,6 +947,93 @@ class GraphBuilder:
 
     def _landmark_position(self, which: tuple[str, int]) -> tuple[float, float]:
         return self.tags[which[1]][:2] if which[0] == "tag" else self.rsus[which[1]]
+
+    def _start_from_graph(self) -> StartState | None:
+        """The start of a held track ignition never started, from the track's own graph (offline); None when it does not determine one.
+
+        Ignition solves a start from a minute of readings placed by dead
+        reckoning, each loosened by the dead-reckoning error since it
+        (:class:`~graphpos.ignition.IgnitionConfig`); a robot that creeps and
+        turns, seeing a landmark or two at a time (MRCLAM: 5-9 m in 150 s,
+        turning 5-15 rad), may not be determined so within the minute, and
+        6 of the 30 MRCLAM6 pieces of 150 s never started. The held track's
+        own factors (odometry with its noise model, every range) do not lose
+        that information: the track is moved rigidly to
+        :data:`GRAPH_START_HEADINGS` headings times :data:`GRAPH_START_POSITIONS`
+        places on the circle of its last range, each solved by
+        Levenberg-Marquardt. As ignition: the best plausible solution is the
+        start when every distinct one (its ``ambiguity_m`` / ``ambiguity_yaw_rad``)
+        has an error at least ``chi2_margin / 2`` higher, and its marginal
+        sigmas are under ignition's limits, at the track's keyframe whose
+        heading is best determined (one of 12 spread over it). The planar
+        graph only (the inertial one would need its bias nodes), and held
+        tracks of up to :data:`GRAPH_START_MAX_TRACK_S`. What it found goes to
+        ``diagnostics["graph_start"]`` (one entry per track it tried).
+        """
+        seg = self.segments[-1]
+        records = [r for r in self.range_records if r.keyframe >= seg.first and r.landmark_key in self._backlog_landmarks]
+        if (self.model.name != "planar" or len(records) < 3
+                or self.keyframe_time(self.last_keyframe) - seg.t_s > GRAPH_START_MAX_TRACK_S):
+            return None
+        said = self.diagnostics.setdefault("graph_start", [])
+        c = self._ignition_args["config"]
+        graph = gtsam.NonlinearFactorGraph()
+        for inc in self._backlog:
+            graph.push_back(inc.factors)
+        landmarks = gtsam.Values()
+        for key, point in self._backlog_landmarks.items():
+            landmarks.insert(key, point)
+        last = records[-1]
+        mark = np.asarray(self._backlog_landmarks[last.landmark_key])
+        ref = self.states[last.keyframe]
+        params = gtsam.LevenbergMarquardtParams()
+        params.setMaxIterations(self.config.batch_max_iterations)
+        params.setRelativeErrorTol(1e-5)
+        solutions = []
+        for a in np.linspace(0.0, 2.0 * math.pi, GRAPH_START_POSITIONS, endpoint=False):
+            e, n = mark + last.reading_m / self.range_scale * np.array([math.cos(a), math.sin(a)])
+            for yaw in np.linspace(-math.pi, math.pi, GRAPH_START_HEADINGS, endpoint=False):
+                values = gtsam.Values(landmarks)
+                for k in range(seg.first, self.last_keyframe + 1):
+                    self.model.insert_values(values, k, self.states[k].moved(ref.east_m, ref.north_m, yaw - ref.yaw_rad, e, n))
+                try:
+                    solved = gtsam.Values(gtsam.LevenbergMarquardtOptimizer(graph, values, params).optimize())
+                except RuntimeError:
+                    continue
+                error = graph.error(solved)
+                if math.isfinite(error):
+                    solutions.append((error, solved))
+        walls = (self._ignition_args["tags_en_m"], self._ignition_args["wall_side"])
+        solutions = [(err, v) for err, v in solutions if not len(walls[0]) or between_walls(np.array(self.model.position(v, last.keyframe)), *walls)]
+        if not solutions:
+            said.append({"t_s": seg.t_s, "result": "no plausible solution"})
+            return None
+        solutions.sort(key=lambda sol: sol[0])
+        best_error, best = solutions[0]
+        at = np.array(self.model.position(best, last.keyframe))
+        for error, v in solutions[1:]:
+            turned = abs(math.remainder(self.model.yaw(v, last.keyframe) - self.model.yaw(best, last.keyframe), 2 * math.pi))
+            distinct = np.hypot(*(np.array(self.model.position(v, last.keyframe)) - at)) > c.ambiguity_m or turned > c.ambiguity_yaw_rad
+            if distinct and error - best_error < c.chi2_margin / 2:  # a turned or shifted track fits almost as well
+                said.append({"t_s": seg.t_s, "result": "ambiguous", "error_gap": error - best_error})
+                return None
+        try:
+            marginals = gtsam.Marginals(graph, best)
+            candidates = sorted({int(k) for k in np.linspace(seg.first, self.last_keyframe, 12)} | {last.keyframe})
+            covs = {k: marginals.marginalCovariance(self.model.pose_key(k)) for k in candidates}
+        except RuntimeError:
+            said.append({"t_s": seg.t_s, "result": "not determinate"})
+            return None
+        k = min(covs, key=lambda j: covs[j][2, 2])
+        state = self.model.read(ValuesSource(best), k, self.speeds.get(k, 0.0))
+        position = self.model.position_cov(covs[k], state)
+        sigma_p, sigma_yaw = math.sqrt(max(position[0, 0], position[1, 1])), math.sqrt(covs[k][2, 2])
+        said.append({"t_s": seg.t_s, "result": "started", "position_sigma_m": sigma_p, "yaw_sigma_rad": sigma_yaw})
+        if sigma_p > c.max_position_sigma_m or sigma_yaw > c.max_yaw_sigma_rad:
+            said[-1]["result"] = "sigmas over ignition's limits"
+            return None
+        return StartState(self.keyframe_time(k), state.east_m, state.north_m, state.yaw_rad, self.speeds.get(k, 0.0), sigma_p, sigma_yaw,
+                          c.speed_sigma_mps, "graph")
 
     def _move_onto_start(self, start: StartState) -> int:
         """Turn and shift the held track (the current segment) so the keyframe of the start sits on ignition's start state; that keyframe.
