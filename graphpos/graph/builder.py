@@ -86,7 +86,8 @@ START_PRIOR_INFLATION = 3.0
 #: MRCLAM robots, 5 degrees took 100-400 s of driving (10 degrees: robot 1 still 386 s).
 START_MAX_YAW_SIGMA_RAD = math.radians(15.0)
 #: :meth:`GraphBuilder._start_from_graph`: trial headings, trial positions per heading, and the longest held
-#: track it solves, s (48 solves of a 150 s MRCLAM track took 3-18 s).
+#: track it solves, s (48 solves of a 150 s MRCLAM track took 3-18 s CPU; graph-batch on a 290 s synthetic drive
+#: took 52 s with it against 2.8 s with ignition starting the track).
 GRAPH_START_HEADINGS = 8
 GRAPH_START_POSITIONS = 6
 GRAPH_START_MAX_TRACK_S = 300.0
