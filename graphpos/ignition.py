@@ -330,6 +330,23 @@ def between_walls(position_en_m: np.ndarray, tags_en_m: np.ndarray, wall_side: n
     return True
 
 
+def rival_gap(best: tuple[float, float, float, float], others, config: IgnitionConfig) -> float | None:
+    """How much worse than ``best`` a distinct solution fits, if one fits almost as well (else None): the start is ambiguous.
+
+    Solutions are ``(east_m, north_m, yaw_rad, cost)``, ``cost`` half the
+    chi-square. Distinct: farther than ``config.ambiguity_m`` or turned by
+    more than ``config.ambiguity_yaw_rad``; almost as well: within
+    ``config.chi2_margin / 2`` of the best cost. Shared by ignition and the
+    graph's own start (:meth:`graphpos.graph.builder.GraphBuilder._start_from_graph`).
+    """
+    e, n, yaw, cost = best
+    for oe, on, oyaw, ocost in others:
+        distinct = math.hypot(oe - e, on - n) > config.ambiguity_m or abs(math.remainder(oyaw - yaw, 2 * math.pi)) > config.ambiguity_yaw_rad
+        if distinct and ocost - cost < config.chi2_margin / 2:
+            return float(ocost - cost)
+    return None
+
+
 def _can_determine(ranges: np.ndarray, fixes: np.ndarray, heading_from_compass: bool, free_heading: bool) -> bool:
     """False when the readings cannot determine the start whatever their values (no solve needed).
 
@@ -667,11 +684,9 @@ class Ignition:
         sigma_yaw = math.pi if free_heading else math.sqrt(cov[2, 2])
         if sigma_p > c.max_position_sigma_m or (not free_heading and sigma_yaw > c.max_yaw_sigma_rad):
             return None
-        for f in plausible:
-            dyaw = 0.0 if free_heading else abs(math.remainder(f.x[2] - best.x[2], 2 * math.pi))
-            distinct = np.hypot(*(f.x[:2] - best.x[:2])) > c.ambiguity_m or dyaw > c.ambiguity_yaw_rad
-            if distinct and f.cost - best.cost < c.chi2_margin / 2:
-                return None  # a rival (a mirror image, a turned track) fits almost as well: wait
+        pose = (lambda x: (x[0], x[1], 0.0)) if free_heading else (lambda x: (x[0], x[1], x[2]))
+        if rival_gap((*pose(best.x), best.cost), [(*pose(f.x), f.cost) for f in plausible], c) is not None:
+            return None  # a rival (a mirror image, a turned track) fits almost as well: wait
         yaw = 0.0 if free_heading else math.remainder(float(best.x[2]), 2 * math.pi)
         source = "fix" if len(fixes) else "ranges"
         range_scale = float(best.x[pose_columns]) if best.x.size > pose_columns else 1.0

@@ -63,7 +63,7 @@ from gtsam.symbol_shorthand import L, R
 from filters.models.angles import wrap_angle
 from graphpos.drive import Channel, Drive, Measurement, RowRun
 from graphpos.graph.config import GraphConfig
-from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState, between_walls
+from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState, between_walls, rival_gap
 from graphpos.profile import SensorProfile
 from graphpos.graph.models import GRAVITY_MPS2, KeyframeState, robust
 from graphpos.graph.smoothers import ValuesSource
@@ -1010,14 +1010,12 @@ class GraphBuilder:
             said.append({"t_s": seg.t_s, "result": "no plausible solution"})
             return None
         solutions.sort(key=lambda sol: sol[0])
-        best_error, best = solutions[0]
-        at = np.array(self.model.position(best, last.keyframe))
-        for error, v in solutions[1:]:
-            turned = abs(math.remainder(self.model.yaw(v, last.keyframe) - self.model.yaw(best, last.keyframe), 2 * math.pi))
-            distinct = np.hypot(*(np.array(self.model.position(v, last.keyframe)) - at)) > c.ambiguity_m or turned > c.ambiguity_yaw_rad
-            if distinct and error - best_error < c.chi2_margin / 2:  # a turned or shifted track fits almost as well
-                said.append({"t_s": seg.t_s, "result": "ambiguous", "error_gap": error - best_error})
-                return None
+        poses = [(*self.model.position(v, last.keyframe), self.model.yaw(v, last.keyframe), error) for error, v in solutions]
+        gap = rival_gap(poses[0], poses[1:], c)
+        if gap is not None:  # a turned or shifted track fits almost as well
+            said.append({"t_s": seg.t_s, "result": "ambiguous", "error_gap": gap})
+            return None
+        best = solutions[0][1]
         try:
             marginals = gtsam.Marginals(graph, best)
             candidates = sorted({int(k) for k in np.linspace(seg.first, self.last_keyframe, 12)} | {last.keyframe})
@@ -1029,9 +1027,10 @@ class GraphBuilder:
         state = self.model.read(ValuesSource(best), k, self.speeds.get(k, 0.0))
         position = self.model.position_cov(covs[k], state)
         sigma_p, sigma_yaw = math.sqrt(max(position[0, 0], position[1, 1])), math.sqrt(covs[k][2, 2])
-        said.append({"t_s": seg.t_s, "result": "started", "position_sigma_m": sigma_p, "yaw_sigma_rad": sigma_yaw})
-        if sigma_p > c.max_position_sigma_m or sigma_yaw > c.max_yaw_sigma_rad:
-            said[-1]["result"] = "sigmas over ignition's limits"
+        within = sigma_p <= c.max_position_sigma_m and sigma_yaw <= c.max_yaw_sigma_rad
+        said.append({"t_s": seg.t_s, "result": "started" if within else "sigmas over ignition's limits",
+                     "position_sigma_m": sigma_p, "yaw_sigma_rad": sigma_yaw})
+        if not within:
             return None
         return StartState(self.keyframe_time(k), state.east_m, state.north_m, state.yaw_rad, self.speeds.get(k, 0.0), sigma_p, sigma_yaw,
                           c.speed_sigma_mps, "graph")
