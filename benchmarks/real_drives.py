@@ -136,10 +136,13 @@ def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int
 
     Prints, per piece, how long after its beginning the first row came
     ("never" when the estimator did not start), the RMS and ANEES of its
-    rows; then per estimator the pieces never started and the mean delay
+    rows, and the degrees of freedom of its odometry noise fit where it
+    calibrated itself (``noise_dof``; under
+    :data:`~graphpos.graph.calibration.MIN_NOISE_FIT_DOF` the piece does not
+    determine the noise); then per estimator the pieces never started and the mean delay
     (counting a piece never started as its whole length) and RMS.
     """
-    print(f"{'piece':<34}{'estimator':<16}{'first_s':>8}{'rms_m':>8}{'anees':>9}")
+    print(f"{'piece':<34}{'estimator':<16}{'first_s':>8}{'rms_m':>8}{'anees':>9}{'noise_dof':>10}")
     summary: dict[str, list] = {n: [] for n in names}
     for drives in groups.values():
         for drive in drives:
@@ -154,7 +157,8 @@ def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int
                     first = float(out.t_s[0] - a) if len(out.t_s) else math.nan
                     summary[name].append((first, r["rms_m"]))
                     shown = f"{first:>8.1f}" if len(out.t_s) else f"{'never':>8}"
-                    print(f"{piece.name:<34}{name:<16}{shown}{r['rms_m']:>8.3f}{r['anees']:>9.2f}", flush=True)
+                    dof = out.diagnostics.get("profile", {}).get("source", {}).get("noise_dof", math.nan)
+                    print(f"{piece.name:<34}{name:<16}{shown}{r['rms_m']:>8.3f}{r['anees']:>9.2f}{dof:>10.1f}", flush=True)
     for name, rows in summary.items():
         first, rms = np.array(rows).T
         never = int(np.isnan(first).sum())

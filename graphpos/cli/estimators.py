@@ -200,6 +200,8 @@ def _run(args: argparse.Namespace) -> int:
             note = "  (not started: no start pose)" if e.diagnostics.get("not_started") else ""
             csv = one_line(str(args.output / f"{safe_name(e.name)}.csv"))
             print(f"{e.name:<18} {len(e):6d} outputs  {e.wall_time_s:7.3f} s  -> {csv}{note}")
+            for line in e.diagnostics.get("warnings", []):  # e.g. a drive too short to calibrate the noise on
+                print(warning_line("run", f"{e.name}: {line}"), file=sys.stderr)
     for line in drive_warnings:  # last, so that a refusal stays one line
         print(warning_line("run", line), file=sys.stderr)
     return 1 if failed else 0

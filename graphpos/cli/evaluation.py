@@ -124,6 +124,9 @@ def _evaluate(args) -> int:
                        workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress, settings=settings,
                        initial_pose=pose, profile=profile_of(args))
     status = _finish(outcome, started, "evaluate")
+    for r in outcome.results:  # what an estimator said of a drive (e.g. too short to calibrate the noise on)
+        for line in ((r.metrics or {}).get("diagnostics") or {}).get("warnings", []):
+            print(warning_line("evaluate", f"{r.job.estimator} on {r.drive_name}: {line}"), file=sys.stderr)
     for line in drive_warnings:
         print(warning_line("evaluate", line), file=sys.stderr)
     return status

@@ -223,6 +223,22 @@ def test_mrclam_robot4_counts_each_held_odometry_reading_once():
     whole = evaluate_estimate(drive, batch)["windows"]["whole"]
     assert whole["position"]["rms_m"] <= 0.26
     assert 1.0 <= whole["nees"]["anees"] <= 4.0
+    assert "warnings" not in batch.diagnostics  # the whole drive determines its heading noise (dof 5.6)
+
+
+@pytest.mark.slow
+def test_mrclam_robot4_piece_too_short_to_determine_its_heading_noise_says_so():
+    """150 s of MRCLAM6 robot 4 from 15 % in, truth hidden: the ranges show almost none of the odometry's heading
+    errors (noise fit dof 0.0, the whole drive 5.6), the heading noise fitted is 0.0009 rad/s/sqrt(s) where the truth
+    shows about 0.02 over 2-64 s, and the ANEES is 24: graph-batch says the noise is not determined."""
+    from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
+
+    drive = mrclam_drive(4)
+    start = drive.start_s + 0.15 * drive.duration_s
+    piece = drive.replace(channels={k: ch.between(start, start + 150.0) for k, ch in drive.channels.items()})
+    batch = ESTIMATORS["graph-batch"]().run(piece.without_truth())
+    assert batch.diagnostics["profile"]["source"]["noise_dof"] < MIN_NOISE_FIT_DOF
+    assert len(batch.diagnostics["warnings"]) == 1
 
 
 @pytest.mark.slow
@@ -301,7 +317,7 @@ def test_noise_fit_recovers_a_random_walk_density():
     rng = np.random.default_rng(3)
     dt, q = 0.1, 0.02
     residual, T = _windowed(rng.normal(0.0, q / np.sqrt(dt), 9000), dt)
-    heading_var, turn_var = _noise_fit(residual, T, np.zeros(T.size))
+    heading_var, turn_var, _ = _noise_fit(residual, T, np.zeros(T.size))
     assert np.sqrt(heading_var) == pytest.approx(q, rel=0.15)
     assert turn_var == 0.0
 
@@ -315,10 +331,30 @@ def test_noise_fit_with_redundancy_finds_the_density_a_solve_hid(share):
     rng = np.random.default_rng(5)
     dt, q = 0.1, 0.03
     residual, T = _windowed(rng.normal(0.0, np.sqrt(share) * q / np.sqrt(dt), 9000), dt)
-    plain, _ = _noise_fit(residual, T, np.zeros(T.size))
-    told, _ = _noise_fit(residual, T, np.zeros(T.size), redundancy=lambda first, last: np.full(first.size, share))
+    plain, _, _ = _noise_fit(residual, T, np.zeros(T.size))
+    told, _, _ = _noise_fit(residual, T, np.zeros(T.size), redundancy=lambda first, last: np.full(first.size, share))
     assert np.sqrt(plain) == pytest.approx(np.sqrt(share) * q, rel=0.15)
     assert np.sqrt(told) == pytest.approx(q, rel=0.15)
+
+
+def test_noise_fit_degrees_of_freedom_count_what_the_residuals_show():
+    """Each window counts its share ``u`` of the error its residual shows; a window at the floor counts nothing.
+
+    4500 windows showing all their error: 95 % of them are kept (the trim),
+    so about 4275 degrees of freedom; showing 30 %: 30 % of that; at the
+    :data:`MIN_REDUNDANCY` floor (a track that followed the odometry): none,
+    under :data:`MIN_NOISE_FIT_DOF`, whatever the residuals.
+    """
+    from graphpos.graph.calibration import MIN_NOISE_FIT_DOF, MIN_REDUNDANCY, _noise_fit
+
+    rng = np.random.default_rng(6)
+    residual, T = _windowed(rng.normal(0.0, 0.02 / np.sqrt(0.1), 9000), 0.1)
+    motion = np.zeros(T.size)
+    kept = int(np.sum(residual**2 <= np.quantile(residual**2, 0.95)))
+    assert _noise_fit(residual, T, motion)[2] == pytest.approx(kept)
+    assert _noise_fit(residual, T, motion, redundancy=lambda first, last: np.full(first.size, 0.3))[2] == pytest.approx(0.3 * kept)
+    floor = _noise_fit(residual, T, motion, redundancy=lambda first, last: np.full(first.size, MIN_REDUNDANCY))
+    assert floor[2] == 0.0 < MIN_NOISE_FIT_DOF
 
 
 def test_noise_fit_sees_an_error_that_persists():
@@ -338,7 +374,7 @@ def test_noise_fit_sees_an_error_that_persists():
     for i in range(1, rate.size):
         rate[i] = phi * rate[i - 1] + drive[i]
     residual, T = _windowed(rate + rng.normal(0.0, 0.005 / np.sqrt(dt), rate.size), dt)
-    multi, _ = _noise_fit(residual, T, np.zeros(T.size))
+    multi, _, _ = _noise_fit(residual, T, np.zeros(T.size))
     short = np.mean(residual[residual**2 <= np.quantile(residual**2, 0.95)] ** 2) / 0.73 / 2.0
     assert np.sqrt(multi) > 2.0 * np.sqrt(short)
 

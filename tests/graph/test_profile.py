@@ -72,12 +72,13 @@ def test_bearing_term_corrects_only_readings_with_a_bearing(biased_drive):
 
 def test_noise_levels_found_on_separate_windows_are_pooled():
     """Corrections compose; the noise of one sensor is one level, each learning having seen its own windows."""
-    first = SensorProfile(heading_noise_radps_per_sqrt_s=0.01, turn_scale_density_per_sqrt_s=0.02, source={"windows": 30})
-    later = SensorProfile(heading_noise_radps_per_sqrt_s=0.03, turn_scale_density_per_sqrt_s=0.02, source={"windows": 10, "drive": "d"})
+    first = SensorProfile(heading_noise_radps_per_sqrt_s=0.01, turn_scale_density_per_sqrt_s=0.02, source={"windows": 30, "noise_dof": 1.5})
+    later = SensorProfile(heading_noise_radps_per_sqrt_s=0.03, turn_scale_density_per_sqrt_s=0.02,
+                          source={"windows": 10, "drive": "d", "noise_dof": 0.75})
     both = first.combined(later)
     assert both.heading_noise_radps_per_sqrt_s == pytest.approx(math.sqrt((30 * 0.01**2 + 10 * 0.03**2) / 40))
     assert both.turn_scale_density_per_sqrt_s == pytest.approx(0.02)
-    assert both.source == {"windows": 40, "drive": "d"}
+    assert both.source == {"windows": 40, "drive": "d", "noise_dof": 2.25}  # independent windows: degrees of freedom add
     assert SensorProfile().combined(later) == later  # nothing learnt before: the later levels as found
 
 
@@ -182,6 +183,33 @@ def test_calibrate_then_run_with_the_profile(biased_drive, tmp_path, capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "missing.json" in err[0]
     assert not (tmp_path / "r2").exists()
+
+
+def test_a_drive_too_short_to_determine_the_noise_is_said_to_be(tmp_path, capsys):
+    """graph-batch says when the drive does not determine its odometry's heading noise (fewer degrees of freedom
+    than MIN_NOISE_FIT_DOF): 60 s straight on, the ranges show none of the heading's errors (dof 0); two minutes
+    with a turn show plenty (dof about 33). ``run`` and ``calibrate`` print it; the profile records the dof."""
+    from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
+
+    short = ESTIMATORS["graph-batch"]().run(synthetic_drive(60, compass=False).without_truth())
+    assert short.diagnostics["profile"]["source"]["noise_dof"] < MIN_NOISE_FIT_DOF
+    assert len(short.diagnostics["warnings"]) == 1 and "does not determine" in short.diagnostics["warnings"][0]
+    longer = ESTIMATORS["graph-batch"]().run(synthetic_drive(120, compass=False, turn_radps=0.05).without_truth())
+    assert longer.diagnostics["profile"]["source"]["noise_dof"] > 10 * MIN_NOISE_FIT_DOF
+    assert "warnings" not in longer.diagnostics
+
+    drive_file = tmp_path / "short.mcap"
+    write_drive(drive_file, synthetic_drive(60, compass=False))
+    capsys.readouterr()
+    assert main(["run", str(drive_file), "-e", "graph-batch", "-e", "dr", "--out-dir", str(tmp_path / "run")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("graphpos run: warning: graph-batch: the drive does not determine")
+    record = json.loads((tmp_path / "run" / "run.json").read_text())["estimators"]["graph-batch"]["diagnostics"]
+    assert record["warnings"] == short.diagnostics["warnings"]
+    assert main(["calibrate", str(drive_file), "-o", str(tmp_path / "p.json")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("graphpos calibrate: warning: the drive does not determine")
+    assert SensorProfile.load(tmp_path / "p.json").source["noise_dof"] < MIN_NOISE_FIT_DOF
 
 
 def test_a_delay_moves_tag_readings_back_and_keeps_their_arrival():
