@@ -910,9 +910,9 @@ def undetermined_noise_warning(profile) -> str | None:
     if dof is None or dof >= MIN_NOISE_FIT_DOF or profile.heading_noise_radps_per_sqrt_s is None:
         return None
     return (f"the drive does not determine its odometry's heading noise ({dof:.1f} of the {MIN_NOISE_FIT_DOF:g} degrees of "
-            f"freedom needed: its ranges show too little of the heading's errors), so the covariances rest on a guess of "
-            f"{profile.heading_noise_radps_per_sqrt_s:.4f} rad/s/sqrt(s); a profile calibrated on a longer drive of these "
-            f"sensors (graphpos calibrate, then --profile) settles it")
+            f"freedom needed: its ranges, fixes and compass show too little of the heading's errors), so the covariances "
+            f"rest on a guess of {profile.heading_noise_radps_per_sqrt_s:.4f} rad/s/sqrt(s); a profile calibrated on a "
+            f"longer drive of these sensors (graphpos calibrate, then --profile) settles it")
 
 
 def _with_found_terms(profile, estimate: Estimate):
