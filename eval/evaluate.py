@@ -70,6 +70,11 @@ def require_truth(drive: Drive) -> None:
         raise MissingChannelError(f"evaluate needs truth: drive '{drive.name}' has no truth channel")
 
 
+def run_warnings(r: JobResult) -> list[str]:
+    """What an estimator said of its run (``diagnostics["warnings"]``: e.g. a drive too short to calibrate the noise on)."""
+    return list(((r.metrics or {}).get("diagnostics") or {}).get("warnings", []))
+
+
 def result_record(r: JobResult) -> dict[str, Any]:
     """One result as stored in results.json."""
     return {
@@ -292,6 +297,10 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
             used.add(stem)
             add_drive_sections(report, drive, mine, out / stem, layout=layout, bags=mcap, bound=bounds[i])
         add_failure_section(report, results)
+        warned = [(r, line) for r in results for line in run_warnings(r)]
+        if warned:
+            report.section("Warnings").table(["drive", "estimator", "warning"],
+                                             [[str(r.drive_name), r.job.estimator, line] for r, line in warned])
         write_json(out / "results.json", {
             "command": "evaluate",
             "provenance": provenance(),

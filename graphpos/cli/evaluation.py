@@ -103,7 +103,7 @@ def _finish(outcome, started: float, command: str) -> int:
 
 
 def _evaluate(args) -> int:
-    from eval.evaluate import evaluate, file_sources
+    from eval.evaluate import evaluate, file_sources, run_warnings
     from graphpos.io.checks import drive_checks, require_usable
     from graphpos.io.outputs import check_output_folder
     from graphpos.ranging import load_range_model
@@ -124,8 +124,8 @@ def _evaluate(args) -> int:
                        workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress, settings=settings,
                        initial_pose=pose, profile=profile_of(args))
     status = _finish(outcome, started, "evaluate")
-    for r in outcome.results:  # what an estimator said of a drive (e.g. too short to calibrate the noise on)
-        for line in ((r.metrics or {}).get("diagnostics") or {}).get("warnings", []):
+    for r in outcome.results:  # what an estimator said of a drive (also in the report's Warnings)
+        for line in run_warnings(r):
             print(warning_line("evaluate", f"{r.job.estimator} on {r.drive_name}: {line}"), file=sys.stderr)
     for line in drive_warnings:
         print(warning_line("evaluate", line), file=sys.stderr)

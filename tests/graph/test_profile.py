@@ -188,7 +188,8 @@ def test_calibrate_then_run_with_the_profile(biased_drive, tmp_path, capsys):
 def test_a_drive_too_short_to_determine_the_noise_is_said_to_be(tmp_path, capsys):
     """graph-batch says when the drive does not determine its odometry's heading noise (fewer degrees of freedom
     than MIN_NOISE_FIT_DOF): 60 s straight on, the ranges show none of the heading's errors (dof 0); two minutes
-    with a turn show plenty (dof about 33). ``run`` and ``calibrate`` print it; the profile records the dof."""
+    with a turn show plenty (dof about 33). ``run``, ``calibrate`` and ``evaluate`` (and its report) say it; the
+    profile records the dof."""
     from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
 
     short = ESTIMATORS["graph-batch"]().run(synthetic_drive(60, compass=False).without_truth())
@@ -210,6 +211,12 @@ def test_a_drive_too_short_to_determine_the_noise_is_said_to_be(tmp_path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("graphpos calibrate: warning: the drive does not determine")
     assert SensorProfile.load(tmp_path / "p.json").source["noise_dof"] < MIN_NOISE_FIT_DOF
+    assert main(["evaluate", str(drive_file), "-e", "graph-batch", "-e", "dr", "--workers", "1", "--no-progress",
+                 "-o", str(tmp_path / "eval")]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("graphpos evaluate: warning: graph-batch on synthetic-0: the drive does not determine")
+    report = (tmp_path / "eval" / "report.md").read_text()
+    assert "## Warnings" in report and report.count("does not determine") == 1
 
 
 def test_a_delay_moves_tag_readings_back_and_keeps_their_arrival():
