@@ -339,7 +339,8 @@ NOISE_FIT_MIN_WINDOWS = 8
 MIN_REDUNDANCY = 0.02
 #: Degrees of freedom (:func:`_noise_fit`'s ``dof``) under which a drive does not determine its odometry's
 #: noise: the relative standard error of a variance estimated from ``dof`` of them is ``sqrt(2 / dof)``,
-#: 100 % at 2. MRCLAM6's whole drives reach 5-10, their 150 s pieces under 1 (see :func:`_noise_fit`).
+#: 100 % at 2. MRCLAM6's whole drives give 4.0-9.6 and Plaza1 42; MRCLAM6's 150 s pieces 0-2.5, 25 of 27
+#: under 2 (see :func:`_noise_fit`).
 MIN_NOISE_FIT_DOF = 2.0
 
 
@@ -370,10 +371,11 @@ def _noise_fit(residual: np.ndarray, T: np.ndarray, motion: np.ndarray, redundan
     whose ``u`` is above :data:`MIN_REDUNDANCY` (a window at that floor
     shows too little of its error to say how much less). Under
     :data:`MIN_NOISE_FIT_DOF` the drive does not determine the noise: on
-    150 s pieces of MRCLAM6 (dof 0.1-1) the fit put the heading noise at
-    0.001-0.005 rad/s/sqrt(s) where the truth shows 0.022-0.038 (and the
-    whole drives, dof 5-10, 0.022-0.067), and graph-batch's ANEES there
-    reached 24-28.
+    150 s pieces of MRCLAM6 (robot 4 at 15 %, robot 1 at 45 and 60 %:
+    dof 0.0-0.3) the fit put the heading noise at 0.001-0.0035
+    rad/s/sqrt(s) where the truth shows 0.011-0.038 over 2-64 s (the whole
+    drives: dof 4.0-9.6, fitted 0.022-0.067), and graph-batch's ANEES on
+    two of them was 24 and 28.
 
     ``redundancy``: ``(first, last) -> u``, the share of each span's error
     its residual shows (windows ``first`` to ``last``, arrays; see
