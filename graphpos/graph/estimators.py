@@ -897,9 +897,10 @@ def undetermined_noise_warning(profile) -> str | None:
     """What to tell a user whose drive did not determine its odometry's noise (:data:`~graphpos.graph.calibration.MIN_NOISE_FIT_DOF`), or None.
 
     The fit's degrees of freedom (``source["noise_dof"]``) count the turn
-    errors the ranges could show. A short drive shows almost none, and the
-    noise fitted from it is a guess (:func:`~graphpos.graph.calibration._noise_fit`):
-    on 150 s pieces of MRCLAM6 5-25 times too low (ANEES up to 28); on the
+    errors the absolute readings (ranges, fixes, compass) could show. A
+    short drive shows almost none, and the noise fitted from it is a guess
+    (:func:`~graphpos.graph.calibration._noise_fit`): on 150 s pieces of
+    MRCLAM6 5-25 times under what the truth shows (ANEES up to 28); on the
     simulator's 76 s paper-straight drives (dof 0) 0.005-0.007, with ANEES
     0.9-1.1 on the ideal and realistic profiles and 5.1 on the paper one
     (seed 3).
