@@ -3,7 +3,9 @@
 Each drive is handed to the estimators as ``Drive.without_truth()`` with
 default settings (the same for every drive); the output is scored against
 the drive's truth afterwards. Prints RMS position error and ANEES per drive
-and estimator, and each estimator's mean over the drives of a dataset::
+and estimator (with, where graph-batch calibrated itself, the degrees of
+freedom of its noise fit: ``noise_dof``), and each estimator's mean over
+the drives of a dataset::
 
     python benchmarks/real_drives.py                       # Plaza1 + MRCLAM6 robots 1-5
     python benchmarks/real_drives.py -e graph-batch --plaza-only
@@ -281,7 +283,7 @@ def main(argv=None) -> int:
         return _segments(groups, names, args.segments)
     if args.halves is not None:
         return _halves(groups, names, args.halves)
-    print(f"{'drive':<28}{'estimator':<16}{'rms_m':>8}{'anees':>9}{'cpu_s':>8}")
+    print(f"{'drive':<28}{'estimator':<16}{'rms_m':>8}{'anees':>9}{'cpu_s':>8}{'noise_dof':>10}")
     for group, drives in groups.items():
         means: dict[str, list] = {n: [] for n in names}
         for drive in drives:
@@ -293,7 +295,8 @@ def main(argv=None) -> int:
                     means[name].append(float("nan"))
                     continue
                 means[name].append(r["rms_m"])
-                print(f"{drive.name:<28}{name:<16}{r['rms_m']:>8.3f}{r['anees']:>9.2f}{r['cpu_s']:>8.1f}", flush=True)
+                dof = r["estimate"].diagnostics.get("profile", {}).get("source", {}).get("noise_dof", math.nan)
+                print(f"{drive.name:<28}{name:<16}{r['rms_m']:>8.3f}{r['anees']:>9.2f}{r['cpu_s']:>8.1f}{dof:>10.1f}", flush=True)
         for name in names:
             print(f"{'mean ' + group:<28}{name:<16}{np.mean(means[name]):>8.3f}")
     return 0
