@@ -52,7 +52,7 @@ def _calibrate(args: argparse.Namespace) -> int:
     from graphpos.cli.estimators import initial_pose
     from graphpos.errors import EstimationError, naming_file
     from graphpos.graph import ESTIMATORS
-    from graphpos.graph.estimators import undetermined_noise_warning
+    from graphpos.graph.calibration import undetermined_noise_warning
     from graphpos.io import read_drive
     from graphpos.io.outputs import check_output_file
     from graphpos.profile import SensorProfile

@@ -547,6 +547,27 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
                                            "turned_rad": turned})
 
 
+def undetermined_noise_warning(profile) -> str | None:
+    """What to tell a user whose drive did not determine its odometry's noise (:data:`MIN_NOISE_FIT_DOF`), or None.
+
+    The fit's degrees of freedom (``source["noise_dof"]``) count the turn
+    errors the absolute readings (ranges, fixes, compass) could show. A
+    short drive shows almost none, and the noise fitted from it is a guess
+    (:func:`_noise_fit`): on 150 s pieces of MRCLAM6 5-25 times under what
+    the truth shows (ANEES up to 28); on the simulator's 76 s paper-straight
+    drives (dof 0) 0.005-0.007, with ANEES
+    0.9-1.1 on the ideal and realistic profiles and 5.1 on the paper one
+    (seed 3).
+    """
+    dof = profile.source.get("noise_dof")
+    if dof is None or dof >= MIN_NOISE_FIT_DOF or profile.heading_noise_radps_per_sqrt_s is None:
+        return None
+    return (f"the drive does not determine its odometry's heading noise ({dof:.1f} of the {MIN_NOISE_FIT_DOF:g} degrees of "
+            f"freedom needed: its ranges, fixes and compass show too little of the heading's errors), so the covariances "
+            f"rest on a guess of {profile.heading_noise_radps_per_sqrt_s:.4f} rad/s/sqrt(s); a profile calibrated on a "
+            f"longer drive of these sensors (graphpos calibrate, then --profile) settles it")
+
+
 #: Readings with a bearing needed to fit the bearing term, and the spread of bearing^2 (rad^2) it needs.
 MIN_BEARING_READINGS = 200
 MIN_BEARING2_SPREAD_RAD2 = 0.01

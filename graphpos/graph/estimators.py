@@ -669,7 +669,7 @@ class GraphBatch(_GraphEstimator):
         """
         if self.profile is not None or not self.config.self_calibrate:
             return super().run(drive)
-        from graphpos.graph.calibration import fit_profile, fit_range_terms
+        from graphpos.graph.calibration import fit_profile, fit_range_terms, undetermined_noise_warning
 
         c = self.config
         t0 = time.perf_counter()
@@ -717,7 +717,7 @@ class GraphBatch(_GraphEstimator):
         diagnostics = {**est.diagnostics, "profile": profile.to_dict(), "range_scale": profile.range_scale, "wheel_scale": profile.wheel_scale,
                        **({"compass_bias_rad": profile.compass_bias_rad} if "compass_bias_rad" in est.diagnostics else {}),
                        "calibration_pass": {k: first_estimate.diagnostics.get(k) for k in ("range_scale", "wheel_scale", "range_scale_solves")}}
-        warning = undetermined_noise_warning(profile)
+        warning = undetermined_noise_warning(profile)  # the drive too short to settle its heading noise
         if warning:
             diagnostics["warnings"] = [*diagnostics.get("warnings", []), warning]
         return dataclasses.replace(est, diagnostics=diagnostics, wall_time_s=time.perf_counter() - t0)
@@ -891,29 +891,6 @@ def difference_nees(d_en_m: np.ndarray, causal_en_m2: np.ndarray, smoothed_en_m2
 
 #: Span of keyframes per iSAM2 update in graph-batch's seeding pass, s.
 BATCH_PASS_CHUNK_S = 5.0
-
-
-def undetermined_noise_warning(profile) -> str | None:
-    """What to tell a user whose drive did not determine its odometry's noise (:data:`~graphpos.graph.calibration.MIN_NOISE_FIT_DOF`), or None.
-
-    The fit's degrees of freedom (``source["noise_dof"]``) count the turn
-    errors the absolute readings (ranges, fixes, compass) could show. A
-    short drive shows almost none, and the noise fitted from it is a guess
-    (:func:`~graphpos.graph.calibration._noise_fit`): on 150 s pieces of
-    MRCLAM6 5-25 times under what the truth shows (ANEES up to 28); on the
-    simulator's 76 s paper-straight drives (dof 0) 0.005-0.007, with ANEES
-    0.9-1.1 on the ideal and realistic profiles and 5.1 on the paper one
-    (seed 3).
-    """
-    from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
-
-    dof = profile.source.get("noise_dof")
-    if dof is None or dof >= MIN_NOISE_FIT_DOF or profile.heading_noise_radps_per_sqrt_s is None:
-        return None
-    return (f"the drive does not determine its odometry's heading noise ({dof:.1f} of the {MIN_NOISE_FIT_DOF:g} degrees of "
-            f"freedom needed: its ranges, fixes and compass show too little of the heading's errors), so the covariances "
-            f"rest on a guess of {profile.heading_noise_radps_per_sqrt_s:.4f} rad/s/sqrt(s); a profile calibrated on a "
-            f"longer drive of these sensors (graphpos calibrate, then --profile) settles it")
 
 
 def _with_found_terms(profile, estimate: Estimate):
