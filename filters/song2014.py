@@ -25,6 +25,18 @@ supplies the position rows. Rows without data that epoch are left out of
 moved forward to the epoch time with the filter's velocity
 (``z = X_RFID + v (t_epoch - t_fix)``, latency compensation), because a
 fix is up to one output interval old when the epoch closes.
+
+What the model leaves to the fixes: the velocity's direction is tied to
+``psi`` only through the accelerometer input (rotated by ``psi``), and the
+wheel observes the speed alone, so the compass steers the track only as far
+as the accelerometers carry it, and the filters' cross-track error is about
+their fixes'. On song2014 Table 6's drives
+(errors split along and across the true direction of travel, whole drive):
+ideal profile, seeds 0-3, IMM 0.90 m across and 0.31 m along against the
+LMS fixes' 0.98 and 0.85 m; paper profile, seeds 0-3, 1.56 and 2.21 m
+against 1.41 and 2.55 m. song2016's filters take a zero-sideways-velocity
+pseudo-measurement for this (``lateral_velocity_sigma_mps``, a documented
+deviation there); these keep the paper's observation as printed.
 """
 
 from __future__ import annotations
