@@ -52,6 +52,7 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from graphpos.drive import Drive, Measurement
+from graphpos.errors import GraphposError
 from graphpos.estimate import OutputRow
 from graphpos.live.feed import LiveFeed
 from graphpos.live.malformed import MalformedMessage
@@ -165,8 +166,9 @@ class _Worker:
         self.status = "failed"
         self.error = f"{type(exc).__name__}: {exc}"
         when = f"after its output at t = {self.last_t_s:.2f} s" if math.isfinite(self.last_t_s) else "before its first output"
-        self._log(f"{self.name} failed {when} and stops: {self.error}")
-        self._traceback = traceback.format_exc()
+        # a bug leaves its traceback in the log for a report; a GraphposError says what went wrong itself
+        detail = "" if isinstance(exc, GraphposError) else "\n" + traceback.format_exc()
+        self._log(f"{self.name} failed {when} and stops: {self.error}{detail}")
 
     def _finish(self) -> None:
         if self.status != "running":

@@ -12,6 +12,7 @@ import time
 import pytest
 
 from graphpos.drive import Measurement
+from graphpos.errors import EstimationError
 from graphpos.estimate import OutputRow
 from graphpos.io import write_drive
 from graphpos.live.feed import LiveFeed
@@ -113,25 +114,30 @@ def test_a_slow_estimator_reports_its_lag_and_holds_up_neither_input_nor_the_oth
     assert max(abs(a.east_m - b.east_m) + abs(a.north_m - b.north_m) for a, b in zip(fast_rows, slow_rows)) == 0.0
 
 
-def test_a_failing_estimator_stops_alone(drive):
+@pytest.mark.parametrize("error, traceback_logged", [(RuntimeError("a bug"), True), (EstimationError("a GTSAM failure"), False)])
+def test_a_failing_estimator_stops_alone(drive, error, traceback_logged):
     out = _Collect()
 
     class Broken(LiveFeed):
         def process(self, m):
             if m.t_s > 2.0:
-                raise RuntimeError("a bug")
+                raise error
             return super().process(m)
 
     broken = Broken(make_estimator("dr"), drive)
     broken.name = "broken"
-    session = LiveSession(drive, [broken, LiveFeed(make_estimator("dr"), drive)], [out], log=lambda line: None)
+    log: list[str] = []
+    session = LiveSession(drive, [broken, LiveFeed(make_estimator("dr"), drive)], [out], log=log.append)
     view = drive.without_truth()
     for seq, m in enumerate(view.measurements(list(view.channels), by="arrival")):
         session.receive(encode(m, seq), time.time_ns(), "test")
     session.receive(encode_end(), time.time_ns(), "test")
     final = session.run(threading.Event(), 0.5)
-    assert final["estimators"]["broken"]["status"] == "failed" and "a bug" in final["estimators"]["broken"]["error"]
+    assert final["estimators"]["broken"]["status"] == "failed" and str(error) in final["estimators"]["broken"]["error"]
     assert final["estimators"]["dr"]["status"] == "finished" and out.rows["dr"][-1].t_s > 7.0
+    # a bug's traceback is in the log for a report; an error graphpos raised on purpose says enough itself
+    (failure,) = [line for line in log if line.startswith("broken failed")]
+    assert ("Traceback (most recent call last)" in failure and "in process" in failure) == traceback_logged
 
 
 @pytest.mark.parametrize("args, says", [
