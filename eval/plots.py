@@ -49,7 +49,7 @@ def _legend(ax) -> None:
         ax.legend(handles, labels, fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)
 
 
-def _label_axes(ax, xlabel: str, ylabel: str, title: str, ncol: int = 1) -> None:
+def _label_axes(ax, xlabel: str, ylabel: str, title: str) -> None:
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     _legend(ax)
@@ -269,7 +269,7 @@ def error_vs_time(drive: Drive, estimates: list[Estimate], path: Path) -> Path:
             ax.set_ylim(0, top)
             title += f" (axis clipped at {top:.1f} m; largest {peak:.1f} m)"
     ax.set_ylim(bottom=0)
-    _label_axes(ax, _time_label(t0), "position error [m]", title, ncol=2)
+    _label_axes(ax, _time_label(t0), "position error [m]", title)
     return _save(fig, path)
 
 
@@ -299,7 +299,7 @@ def speed_error(drive: Drive, estimates: list[Estimate], path: Path) -> Path | N
     for est in with_velocity:
         s = error_series(drive, est)
         ax.plot(s["t_s"] - t0, s["speed_error_mps"], lw=1.0, color=color_of(est.name), label=est.name)
-    _label_axes(ax, _time_label(t0), "speed error [m/s]", f"{drive.name}: speed error against truth", ncol=2)
+    _label_axes(ax, _time_label(t0), "speed error [m/s]", f"{drive.name}: speed error against truth")
     return _save(fig, path)
 
 
@@ -350,7 +350,7 @@ def bound_vs_time(drive: Drive, estimates: list[Estimate], bound, path: Path) ->
                 label=f"bound ({kind}), sqrt trace")
     ax.set_yscale("log")
     _label_axes(ax, _time_label(t0), "position error / bound [m]",
-                f"{drive.name}: position error against the Cramer-Rao bound", ncol=2)
+                f"{drive.name}: position error against the Cramer-Rao bound")
     return _save(fig, path)
 
 

@@ -151,7 +151,6 @@ class Fix:
     north_m: float
     cov_en_m2: np.ndarray
     tags_used: int
-    min_coefficient: float
 
 
 @dataclass
@@ -230,7 +229,7 @@ class LmsFederatedPositioner:
         self._last_fix_t_s = t_s
         self._last_fix = x_rfid
         cov = np.linalg.inv(info) * float(np.sum(w_global**2))
-        return Fix(t_s, float(x_rfid[0]), float(x_rfid[1]), cov, int(np.count_nonzero(coeff > 1e-3 / n)), float(coeff.min() * n))
+        return Fix(t_s, float(x_rfid[0]), float(x_rfid[1]), cov, int(np.count_nonzero(coeff > 1e-3 / n)))
 
     def _local_filter(self, tag: tuple[float, float], range_m: float, t_s: float) -> _TagFilter:
         cfg = self.config

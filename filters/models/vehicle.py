@@ -18,7 +18,6 @@ import numpy as np
 
 #: Indices into the state vector.
 PE, PN, VE, VN, YAW = 0, 1, 2, 3, 4
-STATE_SIZE = 5
 
 
 _IDENTITIES: dict[int, np.ndarray] = {}
@@ -140,8 +139,7 @@ def rotating_velocity_motion(x: np.ndarray, yaw_rate_radps: float, dt_s: float, 
     -------
     x_next : (..., 5) array
     jacobian : (5, 5) array or None
-        ``d x_next / d x`` for a single state; ``d x_next / d w_z`` is
-        ``G[:, 0]`` of :func:`rotating_velocity_input_jacobian`.
+        ``d x_next / d x`` for a single state.
     """
     x = np.asarray(x, dtype=np.float64)
     dpsi = yaw_rate_radps * dt_s
@@ -161,17 +159,6 @@ def rotating_velocity_motion(x: np.ndarray, yaw_rate_radps: float, dt_s: float, 
     return out, F
 
 
-def rotating_velocity_input_jacobian(x: np.ndarray, yaw_rate_radps: float, dt_s: float) -> np.ndarray:
-    """``d x_next / d w_z`` of :func:`rotating_velocity_motion`, shape (n, 1)."""
-    dpsi = yaw_rate_radps * dt_s
-    c, s = np.cos(dpsi), np.sin(dpsi)
-    G = np.zeros((x.shape[-1], 1))
-    G[VE, 0] = dt_s * (-s * x[VE] - c * x[VN])
-    G[VN, 0] = dt_s * (c * x[VE] - s * x[VN])
-    G[YAW, 0] = dt_s
-    return G
-
-
 def random_walk(x: np.ndarray, dt_s: float, jacobian: bool = True):
     """song2016 eq. 10: ``X(k) = A X(k-1) + W`` with ``A = I`` (position random walk).
 
@@ -189,16 +176,6 @@ def random_walk_noise(n: int, speed_sigma_mps: float, dt_s: float) -> np.ndarray
     about the vehicle's speed over a step, so Q is ``(sigma_v dt)^2 I``.
     """
     return np.eye(n) * (speed_sigma_mps * dt_s) ** 2
-
-
-def input_noise(G: np.ndarray, input_sigmas: np.ndarray) -> np.ndarray:
-    """Process noise from noisy inputs: ``Q = G diag(sigma_u^2) G^T``.
-
-    Each IMU sample carries its own noise (song2016 §6: 0.1 m/s^2, 0.2 deg/s,
-    1-sigma), so a step driven by one sample has this covariance.
-    """
-    Gs = G * np.asarray(input_sigmas, dtype=np.float64)
-    return Gs @ Gs.T
 
 
 def constant_velocity_motion(x: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:

@@ -247,12 +247,6 @@ def heading_check(truth: Channel) -> dict[str, Any]:
     return out
 
 
-def heading_reversed(truth: Channel) -> bool:
-    """True when the truth yaw is about 180 deg from the direction of motion
-    (:func:`heading_check`'s verdict ``reversed``)."""
-    return heading_check(truth)["verdict"] == "reversed"
-
-
 # ---------------------------------------------------------------------------
 # Ranges, odometry, turn
 # ---------------------------------------------------------------------------

@@ -47,14 +47,10 @@ def test_improved_motion_vectorised_matches_single():
 
 
 @pytest.mark.parametrize("x", STATES)
-def test_rotating_velocity_jacobians(x):
+def test_rotating_velocity_jacobian(x):
     w, dt = 0.3, 0.1
     _, F = vehicle.rotating_velocity_motion(x, w, dt)
     np.testing.assert_allclose(F, numeric_jacobian(lambda s: vehicle.rotating_velocity_motion(s, w, dt, False)[0], x), atol=1e-8)
-    G = vehicle.rotating_velocity_input_jacobian(x, w, dt)
-    np.testing.assert_allclose(
-        G, numeric_jacobian(lambda v: vehicle.rotating_velocity_motion(x, v[0], dt, False)[0], np.array([w])), atol=1e-8
-    )
 
 
 def test_rotating_velocity_keeps_speed():
@@ -63,14 +59,11 @@ def test_rotating_velocity_keeps_speed():
     assert np.hypot(out[2], out[3]) == pytest.approx(5.0)
 
 
-def test_random_walk_and_input_noise():
+def test_random_walk():
     x = np.array([1.0, 2.0])
     out, F = vehicle.random_walk(x, 1.0)
     np.testing.assert_array_equal(out, x)
     np.testing.assert_array_equal(F, np.eye(2))
-    _, (F, G) = vehicle.improved_motion(STATES[0], np.zeros(3), 0.1)
-    Q = vehicle.input_noise(G, [0.1, 0.1, 0.01])
-    np.testing.assert_allclose(Q, G @ np.diag([0.01, 0.01, 1e-4]) @ G.T, atol=1e-18)
 
 
 @pytest.mark.parametrize("x", STATES)
