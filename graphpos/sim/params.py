@@ -434,11 +434,13 @@ PROFILES: dict[str, dict[str, Any]] = {
             # Fusion-EKF and FUKF among them; in ten-seed batches 0-9, 10-19
             # and 20-29: 35, 34 and 38 of 47, 74, 72 and 81 %).
             # song2014's IMM runs 1.5-2x its published RMS on this profile,
-            # and this delay is most of why: the fused filters lag their
-            # fixes along the track (IMM -1.6 m on average on paper-imm,
-            # Fusion-EKF -1.1 to -1.5 m on song2016 Table 4), where the
-            # papers' fused rows (Fusion-EKF 1.74 m on the constant-speed
-            # pattern, IMM 1.44 m) leave no room for it. A shorter delay
+            # and this delay is about half of the excess: the fused filters
+            # lag their fixes along the track (IMM -1.6 m on average on
+            # paper-imm, Fusion-EKF -1.1 to -1.5 m on song2016 Table 4;
+            # seeds 0-5 without the delay: IMM 2.73 -> 2.06 m in Table 6's
+            # window, Fusion-EKF 2.67 -> 2.24 m on Table 4's acceleration
+            # pattern), where the papers' fused rows (Fusion-EKF 1.77 m
+            # there, IMM 1.44 m) leave no room for it. A shorter delay
             # brings them down and RFID-EKF with them, below song2016's
             # 4-5.6 m (seeds 0-9: 0.5 s 33/47, 0.7 s 34/47; 0 s with 8 dB of
             # fading 33/47; 0.5 s with 7 dB 34/47).
