@@ -28,15 +28,20 @@ fix is up to one output interval old when the epoch closes.
 
 What the model leaves to the fixes: the velocity's direction is tied to
 ``psi`` only through the accelerometer input (rotated by ``psi``), and the
-wheel observes the speed alone, so the compass steers the track only as far
+wheel's ``v_wheel`` changes with a small misalignment of velocity and
+heading only at second order, so the compass steers the track only as far
 as the accelerometers carry it, and the filters' cross-track error is about
-their fixes'. On song2014 Table 6's drives
-(errors split along and across the true direction of travel, whole drive):
-ideal profile, seeds 0-3, IMM 0.90 m across and 0.31 m along against the
-LMS fixes' 0.98 and 0.85 m; paper profile, seeds 0-3, 1.56 and 2.21 m
-against 1.41 and 2.55 m. song2016's filters take a zero-sideways-velocity
-pseudo-measurement for this (``lateral_velocity_sigma_mps``, a documented
-deviation there); these keep the paper's observation as printed.
+their fixes'. On song2014 Table 6's drives (errors split along and across
+the true direction of travel, whole drive): ideal profile, seeds 0-3, IMM
+0.90 m across and 0.31 m along against the LMS fixes' 0.98 and 0.85 m;
+paper profile, seeds 0-3, 1.56 and 2.21 m against 1.41 and 2.55 m.
+song2016's filters take a zero-sideways-velocity pseudo-measurement for
+this (``lateral_velocity_sigma_mps``, a documented deviation there); these
+keep the paper's observation as printed. Tried with one (0.3 m/s, with
+each wheel epoch): the IMM's cross-track error fell to 0.60 m (ideal) and
+1.15 m (paper), its RMS in Table 6's window from 0.91 to 0.69 m and from
+2.81 to 2.63 m: the paper profile's excess over the published 1.44 m is
+mostly along the track.
 """
 
 from __future__ import annotations
