@@ -52,7 +52,6 @@ def _calibrate(args: argparse.Namespace) -> int:
     from graphpos.cli.estimators import initial_pose
     from graphpos.errors import EstimationError, naming_file
     from graphpos.graph import ESTIMATORS
-    from graphpos.graph.calibration import undetermined_noise_warning
     from graphpos.io import read_drive
     from graphpos.io.outputs import check_output_file
     from graphpos.profile import SensorProfile
@@ -71,7 +70,6 @@ def _calibrate(args: argparse.Namespace) -> int:
     print(f"wrote {one_line(str(args.output))}: gyro bias {math.degrees(found.gyro_bias_radps):+.3f} deg/s, yaw-rate scale {found.yaw_rate_scale:.4f}, "
           f"wheel scale {found.wheel_scale:.4f}, range scale {found.range_scale:.4f}, offset {found.range_offset_m:+.3f} m, "
           f"range sigma {'-' if found.range_sigma0_m is None else format(found.range_sigma0_m, '.3f')} m")
-    warning = undetermined_noise_warning(found)
-    if warning:
-        print(warning_line("calibrate", warning), file=sys.stderr)
+    for line in est.diagnostics.get("warnings", []):  # e.g. a drive too short to determine the noise (as run prints them)
+        print(warning_line("calibrate", line), file=sys.stderr)
     return 0
