@@ -145,7 +145,7 @@ def _live(args: argparse.Namespace) -> int:
     addresses = [Address.parse(a) for a in (args.listen or [DEFAULT_LISTEN])]
     udp_out = Address.parse(args.udp_out, ("udp",)) if args.udp_out else None
     foxglove_at = None if args.no_foxglove else _host_port(args.foxglove)
-    check_output_file(args.output)
+    check_output_file(args.output, inputs={"site": args.site, "mapping file": args.mapping}, kind="mcap")
     site = read_drive(args.site)
     translator = None
     if args.mapping:

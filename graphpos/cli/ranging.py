@@ -88,7 +88,7 @@ def _fit(args: argparse.Namespace) -> int:
 
     if not args.truth:
         raise ConfigError("a range model is fitted to true distances: pass --truth to fit against the drive's truth")
-    check_output_file(args.output)
+    check_output_file(args.output, inputs={"drive": args.drive}, kind="json")
     drive = read_drive(args.drive)
     with naming_file(args.drive):
         model = fit_from_drive(drive, args.kind)

@@ -106,7 +106,7 @@ def _simulate(args: argparse.Namespace) -> int:
     from graphpos.sim.faults import check_faults
     from graphpos.sim.params import resolve_params
 
-    check_output_file(args.output)
+    check_output_file(args.output, inputs={"config file": args.config}, kind="mcap")
     overrides = load_config(args.config) if args.config is not None else {}
     faults = overrides.pop("faults", {})
     if not isinstance(faults, dict):

@@ -18,7 +18,12 @@ or ``results.json``, :data:`SUMMARIES`) lists its files under
 ``output_files``. A folder holding anything else (files of the user's, or an
 output of an older graphpos without that list) is refused, never deleted.
 The previous output is renamed away, the new one renamed in, the old one
-deleted.
+deleted. A single output file is cared for the same way
+(:func:`check_output_file` with the command's ``inputs`` and ``kind``): it
+is never one of the command's inputs (nor inside an input folder), and an
+existing file there is replaced only when it is empty or what the command
+writes (an MCAP drive, a JSON object, :data:`OUTPUT_KINDS`), so that a
+re-run replaces its own output and nothing else.
 
 Temporaries are named ``.<target name>.<pid>-<random>.tmp`` beside their
 target. One whose process is gone is debris of a killed run (SIGKILL, power
@@ -41,9 +46,11 @@ import shutil
 import stat
 import tempfile
 from pathlib import Path
-from typing import BinaryIO, Iterator
+from typing import BinaryIO, Callable, Iterator, Mapping
 
 from graphpos.errors import FileFormatError
+from graphpos.io.files import MAX_INPUT_BYTES, READ_CHUNK_BYTES, open_input
+from graphpos.io.mcap_container import MCAP0_MAGIC
 
 #: The summary files of output folders (JSON objects): :func:`output_folder` lists the folder's files in them
 #: (key ``output_files``), which marks a folder as graphpos's own.
@@ -99,9 +106,25 @@ def _check_writable_folder(folder: Path, shown: Path) -> None:
         raise FileFormatError(f"{shown}: cannot write (folder {folder} is not writable)")
 
 
-def check_output_file(path: str | os.PathLike) -> None:
+def check_output_file(path: str | os.PathLike, inputs: Mapping[str, str | os.PathLike | None] | None = None,
+                      kind: str | None = None) -> None:
     """Check that ``path`` can be written as a file: an existing, writable
-    folder, and not a folder itself.
+    folder, not a folder itself, none of the command's inputs, and not an
+    existing file of another kind than the command writes.
+
+    Parameters
+    ----------
+    path : path-like
+        The output file.
+    inputs : mapping of str to path-like or None, optional
+        The command's inputs, each under the words naming it (``{"drive":
+        args.drive}``; None: an optional input not given). ``path`` must be
+        none of the input files (the same file by ``os.path.samefile`` or by
+        resolved path) and not inside an input folder.
+    kind : {"mcap", "json"}, optional
+        What the command writes (:data:`OUTPUT_KINDS`): an existing file at
+        ``path`` is replaced only when it is empty or of this kind. None: any
+        regular file is replaced (the files inside an output folder).
 
     Raises
     ------
@@ -114,12 +137,69 @@ def check_output_file(path: str | os.PathLike) -> None:
     if found is not None and stat.S_ISDIR(found.st_mode):
         raise FileFormatError(f"{path}: cannot write (it is a folder)")
     folder = path.absolute().parent
-    found = _stat(folder, path)
-    if found is None:
+    found_folder = _stat(folder, path)
+    if found_folder is None:
         raise FileFormatError(f"{path}: cannot write (no such folder: {folder} does not exist)")
-    if not stat.S_ISDIR(found.st_mode):
+    if not stat.S_ISDIR(found_folder.st_mode):
         raise FileFormatError(f"{path}: cannot write ({folder} is not a folder)")
     _check_writable_folder(folder, path)
+    for what, source in (inputs or {}).items():
+        if source is not None:
+            _check_not_input(path, found, what, Path(source))
+    if found is not None and kind is not None:
+        _check_kind(path, kind)
+
+
+def _check_not_input(path: Path, found: os.stat_result | None, what: str, source: Path) -> None:
+    """Refuse an output ``path`` (``found``: its ``os.stat``, or None) that is the input file ``source`` or lies
+    inside the input folder ``source``.
+
+    An input that cannot be looked at (missing, a symlink loop, no permission) is left to its reader to refuse.
+    """
+    try:
+        source_found = source.stat()
+    except OSError:
+        source_found = None
+    target = Path(os.path.realpath(path))
+    if source_found is not None and stat.S_ISDIR(source_found.st_mode):
+        if target.is_relative_to(os.path.realpath(source)):
+            raise FileFormatError(f"{path}: is inside the command's input {what} {source}; choose another output path")
+    elif target == Path(os.path.realpath(source)) or (
+            found is not None and source_found is not None and os.path.samestat(found, source_found)):
+        raise FileFormatError(f"{path}: is the command's input {what} {source}; choose another output path")
+
+
+def _check_kind(path: Path, kind: str) -> None:
+    """Refuse an existing output file that is neither empty nor of the ``kind`` the command writes."""
+    what, holds = OUTPUT_KINDS[kind]
+    with open_input(path, allow_empty=True) as (stream, size_bytes):
+        if size_bytes == 0 or holds(stream, size_bytes):
+            return
+    raise FileFormatError(f"{path}: exists and is not {what}; remove it or choose another name")
+
+
+def _holds_mcap(stream: BinaryIO, size_bytes: int) -> bool:
+    """Whether the file begins with the magic bytes of MCAP."""
+    return stream.read(len(MCAP0_MAGIC)) == MCAP0_MAGIC
+
+
+def _holds_json_object(stream: BinaryIO, size_bytes: int) -> bool:
+    """Whether the file is one JSON object (refused unread when larger than an input graphpos reads)."""
+    if size_bytes > MAX_INPUT_BYTES or not stream.read(READ_CHUNK_BYTES).lstrip().startswith(b"{"):
+        return False
+    stream.seek(0)
+    try:
+        return isinstance(json.loads(stream.read()), dict)
+    except (ValueError, RecursionError):  # not JSON, not UTF-8, or nested too deep to read
+        return False
+
+
+#: What a single-file command writes (``kind`` of :func:`check_output_file`): the words naming it, and the
+#: test that an existing file (open, and its size in bytes) holds it.
+OUTPUT_KINDS: dict[str, tuple[str, Callable[[BinaryIO, int], bool]]] = {
+    "mcap": ("an MCAP drive", _holds_mcap),
+    "json": ("a JSON object", _holds_json_object),
+}
 
 
 def check_output_folder(path: str | os.PathLike, parents: bool = True) -> None:
