@@ -141,6 +141,27 @@ def _num(value: float | None, fmt: str) -> str:
     return "-" if value is None else format(value, fmt)
 
 
+def _table_lines(rows: list[list[str]], right: list[bool], indent: str = "", last_free: bool = False) -> list[str]:
+    """Rows of cells as lines of aligned columns, each as wide as its widest cell, two spaces apart.
+
+    Parameters
+    ----------
+    rows : list of list of str
+        The cells, a header row first where there is one.
+    right : list of bool
+        Per column: right-aligned (numbers) or left-aligned.
+    indent : str
+        Put before every line.
+    last_free : bool
+        The last column (free text) is not padded.
+    """
+    widths = [max(len(row[i]) for row in rows) for i in range(len(right))]
+    if last_free:
+        widths[-1] = 0
+    return [indent + "  ".join((cell.rjust(w) if r else cell.ljust(w)) for cell, w, r in zip(row, widths, right)).rstrip()
+            for row in rows]
+
+
 def _info(args: argparse.Namespace) -> int:
     from graphpos.io.checks import require_usable
 
@@ -157,10 +178,10 @@ def _info(args: argparse.Namespace) -> int:
 def _print_info(info: dict[str, Any]) -> None:
     print(f"drive     {info['name']}  ({info['file']})")
     print(f"duration  {info['duration_s']:.3f} s  ({info['start_s']:.3f} .. {info['end_s']:.3f} s)")
-    print(f"{'channel':<10}{'rows':>9}{'rate_hz':>10}{'start_s':>13}{'end_s':>13}")
-    for name, ch in info["channels"].items():
-        print(f"{name:<10}{ch['count']:>9}{_num(ch['rate_hz'], '.2f'):>10}"
-              f"{_num(ch['start_s'], '.3f'):>13}{_num(ch['end_s'], '.3f'):>13}")
+    channel_rows = [["channel", "rows", "rate_hz", "start_s", "end_s"]]
+    channel_rows += [[name, str(ch["count"]), _num(ch["rate_hz"], ".2f"), _num(ch["start_s"], ".3f"),
+                      _num(ch["end_s"], ".3f")] for name, ch in info["channels"].items()]
+    print("\n".join(_table_lines(channel_rows, [False, True, True, True, True])))
     layouts = ", ".join(f"{k} {v}" for k, v in info["tags"]["layouts"].items())
     print(f"tags      {info['tags']['count']}  (layouts: {layouts})")
     print(f"rsus      {info['rsus']['count']}")
@@ -172,9 +193,9 @@ def _print_info(info: dict[str, Any]) -> None:
     if info["estimates"]:
         print("estimates " + ", ".join(f"{k} ({v['count']} rows)" for k, v in info["estimates"].items()))
     print("checks (error: run and evaluate refuse the drive; warning: they say so)")
-    for check in info["checks"]:
-        print(f"  {check['name']:<15}{check['level']:<8}{check['verdict']:<8}{check['checked']:<13}"
-              f"{check['message'] or check['rule']}")
+    check_rows = [[c["name"], c["level"], c["verdict"], c["checked"], c["message"] or c["rule"]] for c in info["checks"]]
+    if check_rows:
+        print("\n".join(_table_lines(check_rows, [False] * 5, indent="  ", last_free=True)))
     if info.get("truth_checks"):
         from graphpos.io.checks import describe_check
 
@@ -188,7 +209,7 @@ def _import_plaza(args: argparse.Namespace) -> int:
     from graphpos.io.outputs import check_output_file
     from graphpos.io.plaza import import_plaza
 
-    check_output_file(args.output)
+    check_output_file(args.output, inputs={"Plaza file": args.file}, kind="mcap")
     drive = import_plaza(args.file) if args.origin is None else import_plaza(args.file, origin=args.origin)
     write_drive(args.output, drive)
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())
@@ -203,7 +224,7 @@ def _import_mrclam(args: argparse.Namespace) -> int:
     from graphpos.io.mrclam import import_mrclam
     from graphpos.io.outputs import check_output_file
 
-    check_output_file(args.output)
+    check_output_file(args.output, inputs={"dataset folder": args.directory}, kind="mcap")
     if args.origin is None:
         drive = import_mrclam(args.directory, args.robot)
     else:
@@ -227,7 +248,8 @@ def _import_mapped(args: argparse.Namespace) -> int:
         from graphpos.io.rosbag import import_rosbag as read
     else:
         from graphpos.io.csvlog import import_csv as read
-    check_output_file(args.output)
+    source = "bag" if args.import_format == "rosbag" else "CSV folder"
+    check_output_file(args.output, inputs={source: args.source, "mapping file": args.mapping}, kind="mcap")
     drive = read(args.source, args.mapping)
     write_drive(args.output, drive)
     counts = ", ".join(f"{name} {len(ch)}" for name, ch in drive.channels.items())

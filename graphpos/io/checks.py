@@ -4,7 +4,9 @@
 ``error``: every time stamp equal, a span of years; ``run`` and ``evaluate``
 refuse it in one line before any work) and what only deserves a word (level
 ``warning``: no sensor rows, a long gap, every tag at one point, a
-recording whose writer was stopped before it closed the file; said on
+recording whose writer was stopped before it closed the file, IMU or wheel
+rows at a rate no logger has (times in the wrong unit), two rows of one
+sensor at one time with different values; said on
 stderr and listed in ``run.json`` and ``results.json``), with the rules the
 reader enforces on every file listed alongside. :func:`drive_checks`
 returns the drive against each rule; ``graphpos info`` prints them as its
@@ -613,6 +615,32 @@ def _sensor_gap(drive: Drive) -> str | None:
     return f"no sensor row for {gap_s:.1f} s ({t_s[gap]:.3f} .. {t_s[gap + 1]:.3f} s)"
 
 
+#: How far an odometry channel's rows may start after, or end before, the other sensors' rows, s. Past it the
+#: estimators' tracks start late or end early (an odometry silence longer than
+#: :data:`graphpos.ignition.MAX_ODOMETRY_GAP_S`, 2 s, ends a track), and the drive says so.
+ODOMETRY_SPAN_WARNING_S = 5.0
+
+
+def _odometry_span(drive: Drive) -> str | None:
+    """An IMU or wheel log that starts late or ends early against the drive's other sensors (a CSV drive whose IMU
+    log ended at 7 s of 30 s: every track ended at 9 s, exit 0, no word)."""
+    present = {name: drive.channels[name].t_s for name in SENSOR_CHANNELS if drive.has(name)}
+    first_s = min((float(t[0]) for t in present.values()), default=None)
+    last_s = max((float(t[-1]) for t in present.values()), default=None)
+    said = []
+    for name in ("imu", "wheel"):
+        if name not in present:
+            continue
+        t = present[name]
+        if t[0] - first_s > ODOMETRY_SPAN_WARNING_S:
+            said.append(f"'{name}' starts at {t[0]:.3f} s, {t[0] - first_s:.1f} s after the first sensor row")
+        if last_s - t[-1] > ODOMETRY_SPAN_WARNING_S:
+            said.append(f"'{name}' ends at {t[-1]:.3f} s, {last_s - t[-1]:.1f} s before the last sensor row ({last_s:.3f} s)")
+    if not said:
+        return None
+    return f"{'; '.join(said)}: the estimators' tracks need the odometry and begin or end with it (a log cut short?)"
+
+
 def _tags_at_one_point(drive: Drive) -> str | None:
     tags = drive.tags
     if len(tags) < 2 or np.ptp(tags.east_m) > 0 or np.ptp(tags.north_m) > 0:
@@ -637,6 +665,88 @@ def _unclosed_recording(drive: Drive) -> str | None:
     rows = any(len(ch) for ch in drive.channels.values())
     ending = f"ending at t = {drive.end_s:.3f} s" if rows else "which holds no rows"
     return f"the recording was not closed (its writer was stopped) and was read up to its last complete chunk, {ending}"
+
+
+#: Slowest and fastest plausible row rates of the odometry sensors (IMU, wheel), Hz. Real loggers run at
+#: 5 Hz (Plaza's odometry) to 100 Hz (MRCLAM, the simulator), IMUs at up to a few kHz; a rate outside is
+#: times read in the wrong unit (milliseconds taken as seconds: 100 Hz becomes 0.1 Hz; seconds as
+#: milliseconds: 100 kHz).
+MIN_ODOMETRY_RATE_HZ = 1.0
+MAX_ODOMETRY_RATE_HZ = 10_000.0
+#: Channels that hold one reading per instant (rfid and rsu may hold several: one per tag or RSU).
+ONE_READING_CHANNELS: tuple[str, ...] = ("imu", "wheel", "compass", "gnss", "truth")
+
+
+def row_rate_hz(t_s: np.ndarray) -> float | None:
+    """1 / the median interval between the distinct times of a channel, Hz; None with fewer than three distinct times.
+
+    The median, so that a gap or a burst does not move it; distinct times, so that rows repeated at one time
+    (:func:`repeated_rows`) do not.
+    """
+    times = np.unique(t_s)
+    if times.size < 3:
+        return None
+    return 1.0 / float(np.median(np.diff(times)))
+
+
+def _odometry_rate(drive: Drive) -> str | None:
+    said = []
+    for channel in ("imu", "wheel"):
+        rate_hz = row_rate_hz(drive.channels[channel].t_s) if drive.has(channel) else None
+        if rate_hz is not None and not MIN_ODOMETRY_RATE_HZ <= rate_hz <= MAX_ODOMETRY_RATE_HZ:
+            said.append(f"{channel} at {rate_hz:.3g} rows/s (one every {1 / rate_hz:.3g} s)")
+    if not said:
+        return None
+    return (f"{' and '.join(said)}, outside the {MIN_ODOMETRY_RATE_HZ:g} .. {MAX_ODOMETRY_RATE_HZ:g} rows/s of any "
+            "IMU or wheel logger: times in the wrong unit? (an import mapping's units.time, e.g. \"ms\")")
+
+
+def repeated_rows(channel: Channel) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of a channel that repeat the time of an earlier row: exactly, and with other values.
+
+    Parameters
+    ----------
+    channel : Channel
+
+    Returns
+    -------
+    exact : array of bool
+        Rows equal to an earlier row in every column (NaN equal to NaN): a
+        logger that wrote the row twice.
+    conflicting : array of bool
+        Rows of a channel of :data:`ONE_READING_CHANNELS` at the time of an
+        earlier row, not equal to any earlier row: two readings of one sensor
+        at one instant. Always False for rfid and rsu, which read several
+        tags or RSUs at once.
+    """
+    n = len(channel)
+    exact = np.zeros(n, dtype=bool)
+    if n < 2:
+        return exact, exact.copy()
+    table = np.column_stack(list(channel.columns.values()))
+    _, first = np.unique(np.where(np.isnan(table), np.inf, table), axis=0, return_index=True)  # columns hold no inf
+    exact[:] = True
+    exact[first] = False
+    if channel.kind not in ONE_READING_CHANNELS:
+        return exact, np.zeros(n, dtype=bool)
+    same_time = np.r_[False, channel.t_s[1:] == channel.t_s[:-1]]  # t_s never decreases
+    return exact, same_time & ~exact
+
+
+def _conflicting_rows(drive: Drive) -> str | None:
+    said = []
+    for name in ONE_READING_CHANNELS:
+        if not drive.has(name):
+            continue
+        conflicting = repeated_rows(drive.channels[name])[1]
+        if conflicting.any():
+            row = int(np.argmax(conflicting))
+            said.append(f"{name}: {int(np.count_nonzero(conflicting))} of {len(drive.channels[name])} rows "
+                        f"(first: row {row}, t_s = {drive.channels[name].t_s[row]:.6g} s)")
+    if not said:
+        return None
+    return ("rows at the time of an earlier row with other values, two readings of one sensor at one instant "
+            "(a logger writing each row twice, or two sensors on one channel?), both used: " + "; ".join(said))
 
 
 #: Odometry readings a graph turns into noise densities: (channel, column, the graph setting of its rate).
@@ -669,14 +779,22 @@ def held_readings(drive: Drive) -> list[tuple[str, str, str, float, float]]:
     """The odometry channels of ``drive`` that repeat their readings: ``(channel, column, rate setting, rows/s, new readings/s)``.
 
     A channel repeats them when its new readings come at under
-    :data:`HELD_READINGS_SHARE` of its row rate (:func:`new_reading_rate_hz`).
+    :data:`HELD_READINGS_SHARE` of its row rate (:func:`new_reading_rate_hz`)
+    and at no less than :data:`MIN_ODOMETRY_RATE_HZ`: a channel whose value
+    never changes (a wheel speed of 0 throughout a standstill), or barely
+    ever, holds one reading, not a logger's repeats, and a rate of new
+    readings near 0 would make the graphs take its rows for almost no
+    information at all.
     """
     held = []
     for channel, column, setting in ODOMETRY_READINGS:
         if not drive.has(channel) or column not in drive.channels[channel].columns:
             continue
-        rates = new_reading_rate_hz(drive.channels[channel].t_s, drive.channels[channel].columns[column])
-        if rates is not None and rates[1] < HELD_READINGS_SHARE * rates[0]:
+        values = drive.channels[channel].columns[column]
+        if not (values != values[0]).any():
+            continue  # one value throughout: nothing is repeated
+        rates = new_reading_rate_hz(drive.channels[channel].t_s, values)
+        if rates is not None and MIN_ODOMETRY_RATE_HZ <= rates[1] < HELD_READINGS_SHARE * rates[0]:
             held.append((channel, column, setting, *rates))
     return held
 
@@ -731,10 +849,16 @@ DRIVE_RULES: tuple[DriveRule, ...] = (
     DriveRule("sensor-rows", "warning", "some sensor channel has rows", _no_sensor_rows),
     DriveRule("channel-span", "warning", "the rows of a channel are not all at one t_s", _channel_frozen),
     DriveRule("sensor-gap", "warning", f"no stretch over {SENSOR_GAP_WARNING_S:g} s without a sensor row", _sensor_gap),
+    DriveRule("odometry-span", "warning", f"IMU and wheel rows start and end within {ODOMETRY_SPAN_WARNING_S:g} s of "
+              "the other sensors' rows", _odometry_span),
     DriveRule("tag-spread", "warning", "tags are not all at one point", _tags_at_one_point),
     DriveRule("window-span", "warning", "every window overlaps the drive's time span", _window_outside),
     DriveRule("held-readings", "warning", "the wheel speed and the yaw rate are new readings at least "
               f"{HELD_READINGS_SHARE:g} times as often as rows come", _held_readings),
+    DriveRule("odometry-rate", "warning", f"IMU and wheel rows come at {MIN_ODOMETRY_RATE_HZ:g} .. "
+              f"{MAX_ODOMETRY_RATE_HZ:g} per second (median interval)", _odometry_rate),
+    DriveRule("conflicting-rows", "warning", f"{', '.join(ONE_READING_CHANNELS)} (one reading per instant) never "
+              "hold two rows at one time with different values", _conflicting_rows),
     DriveRule("closed-file", "warning", "a recording was closed by its writer, not stopped while it wrote "
               "(graphpos.io.mcap_recorder)", _unclosed_recording),
 )

@@ -7,8 +7,10 @@ folder given on the command line), its ``time`` column, its ``fields``
 columns. In a file that several channels share, a row whose cells of a
 channel's fields are all empty holds no reading of that channel and is
 skipped (the time column does not count). Every other cell read must be a
-number (an empty cell only where the drive column is optional); an error
-names the file, the line and the column.
+number, or empty (or NaN): where the drive column is optional it is absent
+(NaN), elsewhere it is a gap in that sensor, its row dropped and counted
+in the drive's ``import_notes`` (the time, ids and ``inf`` are refused);
+an error names the file, the line and the column.
 """
 
 from __future__ import annotations
@@ -54,7 +56,8 @@ def import_csv(folder: str | os.PathLike, mapping: str | os.PathLike) -> Drive:
     -------
     Drive
         Named after the folder; ``params`` records the source, the mapping,
-        each channel's file and ``import_notes`` (rows dropped or sorted).
+        each channel's file and ``import_notes`` (rows dropped as gaps or
+        repeats, sorted, or at one time with other values).
 
     Raises
     ------
@@ -77,4 +80,4 @@ def import_csv(folder: str | os.PathLike, mapping: str | os.PathLike) -> Drive:
         raws.append(_raw(cm, path, tables[path, cm.delimiter]))
     params = {"source": "csv", "folder": folder.resolve().name, "mapping": loaded.path.name,
               "files": {cm.channel: cm.source for cm in loaded.channels.values()}}
-    return build_drive(loaded, raws, name=folder.resolve().name, params=params)
+    return build_drive(loaded, raws, name=folder.resolve().name, params=params, missing_as_gaps=True)

@@ -81,9 +81,16 @@ truth    east and north (m); yaw (rad) or orientation; [v_east and v_north,
 =======  ====================================================================
 
 Every value read is checked (a number, finite unless its drive column is
-optional, ids whole); an error names the file or topic, the row or message
-and the field. Rows are sorted by time (stably). Compass yaw and tag
-bearings are wrapped into (-pi, pi], truth yaw unwrapped.
+optional, ids whole; a compass yaw or tag bearing within +-4 pi in the
+drive's unit, so that degrees read as radians are refused, suggesting the
+unit, not wrapped into nonsense; a yaw rate in deg/s read as rad/s is
+refused beyond the drive's +-10 rad/s); an error names the file or topic,
+the row or message and the field. A CSV importer's row without a
+required value (an empty cell, NaN) is a gap: dropped and counted
+(:func:`build_drive`'s ``missing_as_gaps``). Rows are sorted by time
+(stably); a row that repeats an earlier one exactly is dropped, rows of
+one sensor at one time with other values are kept and noted. Compass yaw
+and tag bearings are wrapped into (-pi, pi], truth yaw unwrapped.
 """
 
 from __future__ import annotations
@@ -138,19 +145,33 @@ class Input:
         The unit the drive takes it in (the default of ``units``).
     optional : bool
         A row may lack it (NaN, an empty cell): its drive column is optional.
+    max_si : float, optional
+        The largest magnitude it can have in the drive's unit, whatever the
+        recording: a value beyond it is in another unit (degrees read as
+        radians), and the import is refused saying so. None: not checked
+        here (a drive column's plausible range is checked on every channel,
+        :data:`graphpos.drive.CHANNEL_SPECS`; this is for inputs wrapped
+        before that check sees them).
     """
 
     kind: str = "number"
     quantity: str | None = None
     unit: str | None = None
     optional: bool = False
+    max_si: float | None = None
 
+
+#: Largest magnitude of a heading or bearing in radians, the drive's bound of a compass yaw (4 pi): a turn either
+#: way of zero (0 .. 2 pi from north, -pi .. pi from east), doubled for one unwrapped for a while. Degrees (up to
+#: 360) are far beyond it.
+MAX_HEADING_RAD = next(spec.hi for spec in CHANNEL_SPECS["compass"] if spec.name == "yaw_rad")
 
 _TIME = Input("number", "time", "s")
 _LENGTH = Input("number", "length", "m")
 _SOME_LENGTH = Input("number", "length", "m", optional=True)
 _SPEED = Input("number", "speed", "m/s")
 _ANGLE = Input("number", "angle", "rad")
+_HEADING = Input("number", "angle", "rad", max_si=MAX_HEADING_RAD)
 _GEODETIC = Input("number", "angle", "deg")
 _QUATERNION = Input("quaternion")
 _ID = Input("id")
@@ -161,9 +182,9 @@ INPUTS: dict[str, dict[str, Input]] = {
             "accel_x": Input("number", "acceleration", "m/s^2", optional=True),
             "accel_y": Input("number", "acceleration", "m/s^2", optional=True)},
     "wheel": {"speed": _SPEED},
-    "compass": {"yaw": _ANGLE, "orientation": _QUATERNION},
+    "compass": {"yaw": _HEADING, "orientation": _QUATERNION},
     "rfid": {"tag_id": _ID, "range": _SOME_LENGTH, "rss": Input(optional=True),
-             "bearing": Input("number", "angle", "rad", optional=True)},
+             "bearing": Input("number", "angle", "rad", optional=True, max_si=MAX_HEADING_RAD)},
     "rsu": {"rsu_id": _ID, "east": _SOME_LENGTH, "north": _SOME_LENGTH, "range": _SOME_LENGTH, "sigma": _LENGTH},
     "gnss": {"lat": _GEODETIC, "lon": _GEODETIC, "alt": _LENGTH, "east": _LENGTH, "north": _LENGTH, "sigma": _LENGTH,
              "covariance": Input("covariance"), "status": Input()},
@@ -715,6 +736,30 @@ def _arrays(raw: RawChannel, rows: np.ndarray, name: str, width: int) -> np.ndar
     return out
 
 
+def _check_magnitude(raw: RawChannel, rows: np.ndarray, name: str, values_si: np.ndarray) -> None:
+    """Refuse values of input ``name`` beyond its :attr:`Input.max_si`: they are in another unit than the mapping says.
+
+    The error names the first such row and suggests the unit of :data:`UNITS` the column's values fit in.
+    """
+    spec = channel_inputs(raw.mapping.channel)[name]
+    if spec.max_si is None:
+        return
+    beyond = np.abs(values_si) > spec.max_si  # NaN (a gap, an optional value absent) is not beyond
+    if not beyond.any():
+        return
+    cm = raw.mapping
+    table = UNITS[spec.quantity]
+    unit = cm.units.get(name, spec.unit)
+    to_recorded = table[spec.unit] / table[unit]
+    largest = float(np.nanmax(np.abs(values_si))) * to_recorded
+    fitting = [u for u, factor in table.items() if u != unit and largest * factor / table[spec.unit] <= spec.max_si]
+    advice = (f"in {fitting[0]}? set units = {{ {name} = \"{fitting[0]}\" }}" if fitting else f"check units.{name}")
+    i = int(np.argmax(beyond))
+    raise raw.error(int(rows[i]), name, f"{values_si[i] * to_recorded:g} is beyond ±{spec.max_si * to_recorded:.4g} "
+                                        f"{unit}, which no {name.replace('_', ' ')} in {unit} reaches (the "
+                                        f"{raw.field_word} reaches {largest:g}); {advice} in {cm.where}")
+
+
 def input_values(raw: RawChannel, rows: np.ndarray, name: str) -> np.ndarray:
     """Input ``name`` of the given rows in the drive's unit (an id as its number, a quaternion as its yaw, a
     covariance as sigma).
@@ -722,7 +767,8 @@ def input_values(raw: RawChannel, rows: np.ndarray, name: str) -> np.ndarray:
     Raises
     ------
     FileFormatError
-        A value that is not a number, not finite, not a whole id, not in ``ids`` (:meth:`RawChannel.error`).
+        A value that is not a number, not finite, not a whole id, not in ``ids``, or beyond what the input can
+        be in the mapping's unit (:attr:`Input.max_si`) (:meth:`RawChannel.error`).
     """
     spec = channel_inputs(raw.mapping.channel)[name]
     value = raw.fields[name]
@@ -745,7 +791,9 @@ def input_values(raw: RawChannel, rows: np.ndarray, name: str) -> np.ndarray:
             raise raw.error(int(rows[i]), name, f"east/north variances {var_en_m2[i, 0]:g}, {var_en_m2[i, 1]:g} "
                                                 "are not positive (unknown?); give fields.sigma instead")
         return np.sqrt(var_en_m2.mean(axis=1))
-    return _numbers(raw, rows, name, spec.optional) * raw.mapping.factor(name)
+    values_si = _numbers(raw, rows, name, spec.optional) * raw.mapping.factor(name)
+    _check_magnitude(raw, rows, name, values_si)
+    return values_si
 
 
 def _yaw_rad(cm: ChannelMapping, get: Callable[[str], np.ndarray | None]) -> np.ndarray:
@@ -791,8 +839,56 @@ def _located(exc: DriveError, raw: RawChannel, rows: np.ndarray) -> FileFormatEr
     return FileFormatError(f"{where}: {exc.reason}")
 
 
-def _build_channel(raw: RawChannel, origin: GeoOrigin | None) -> tuple[Channel, np.ndarray, list[str]]:
-    """A channel from what was read, the recording's row of each of its rows, and notes on what was changed."""
+def _without_gaps(raw: RawChannel, rows: np.ndarray) -> tuple[np.ndarray, list[str]]:
+    """The rows whose every required number (not the time) has a value, and a note on the others (gaps: NaN, empty).
+
+    Raises
+    ------
+    FileFormatError
+        A value that is not a number, or infinite (:func:`_numbers`).
+    """
+    inputs = channel_inputs(raw.mapping.channel)
+    gap = np.zeros(rows.size, dtype=bool)
+    said = []
+    for name, source in raw.fields.items():
+        spec = inputs[name]
+        if not isinstance(source, str) or spec.kind != "number" or spec.optional or spec.quantity == "time":
+            continue
+        missing = np.isnan(_numbers(raw, rows, name, optional=True))
+        if missing.any():
+            said.append(f"{raw.field_word} '{source}' ({name}): {int(np.count_nonzero(missing))}, first "
+                        f"{raw.row_name(int(rows[np.argmax(missing)]))}")
+            gap |= missing
+    if not gap.any():
+        return rows, []
+    return rows[~gap], [f"{raw.source}: {int(np.count_nonzero(gap))} of {rows.size} rows have no value (NaN or "
+                        f"empty) where one is needed ({'; '.join(said)}): gaps in that sensor; dropped"]
+
+
+def _without_repeats(raw: RawChannel, channel: Channel, rows: np.ndarray) -> tuple[Channel, np.ndarray, list[str]]:
+    """The channel without rows that repeat an earlier row exactly, its rows, and notes on the repeats and on rows
+    at the time of another with other values (kept: :func:`graphpos.io.checks.repeated_rows`)."""
+    from graphpos.io.checks import repeated_rows
+
+    notes = []
+    exact = repeated_rows(channel)[0]
+    if exact.any():
+        notes.append(f"{raw.source}: {int(np.count_nonzero(exact))} of {rows.size} rows repeat an earlier row exactly "
+                     f"(first: {raw.row_name(int(rows[np.argmax(exact)]))}); dropped")
+        channel, rows = channel.select(~exact), rows[~exact]
+    conflicting = repeated_rows(channel)[1]
+    if conflicting.any():
+        i = int(np.argmax(conflicting))
+        notes.append(f"{raw.source}: {int(np.count_nonzero(conflicting))} of {rows.size} rows are at the time of the "
+                     f"row before with other values (first: {raw.row_name(int(rows[i]))}, at the time of "
+                     f"{raw.row_name(int(rows[i - 1]))}, t = {channel.t_s[i]:.6g} s): two readings at one instant "
+                     "(each row logged twice? two sensors in one file?); both kept")
+    return channel, rows, notes
+
+
+def _build_channel(raw: RawChannel, origin: GeoOrigin | None, missing_as_gaps: bool) -> tuple[Channel, np.ndarray, list[str]]:
+    """A channel from what was read, the recording's row of each of its rows, and notes on what was changed
+    (``missing_as_gaps``: :func:`build_drive`)."""
     cm = raw.mapping
     rows = np.arange(len(raw))
     notes = []
@@ -802,6 +898,9 @@ def _build_channel(raw: RawChannel, origin: GeoOrigin | None) -> tuple[Channel, 
             notes.append(f"{raw.source}: {int(np.count_nonzero(~keep))} of {rows.size} fixes have a status below "
                          f"min_status {cm.min_status}; dropped")
         rows = rows[keep]
+    if missing_as_gaps:
+        rows, found = _without_gaps(raw, rows)
+        notes += found
     t_s = input_values(raw, rows, "time")
     order = np.argsort(t_s, kind="stable")
     moved = int(np.count_nonzero(order != np.arange(order.size)))
@@ -818,13 +917,21 @@ def _build_channel(raw: RawChannel, origin: GeoOrigin | None) -> tuple[Channel, 
         return read[name]
 
     try:
-        return Channel(cm.channel, _columns(raw, get, origin)), rows, notes
+        channel = Channel(cm.channel, _columns(raw, get, origin))
     except DriveError as exc:
         raise _located(exc, raw, rows) from None
+    channel, rows, found = _without_repeats(raw, channel, rows)
+    return channel, rows, notes + found
 
 
-def build_drive(mapping: Mapping, raws: Sequence[RawChannel], name: str, params: dict[str, Any]) -> Drive:
+def build_drive(mapping: Mapping, raws: Sequence[RawChannel], name: str, params: dict[str, Any],
+                missing_as_gaps: bool = False) -> Drive:
     """The drive from what an importer read through ``mapping``.
+
+    Rows that repeat an earlier row of their channel exactly are dropped;
+    rows of one sensor at one time with other values are kept and noted
+    (:func:`graphpos.io.checks.repeated_rows`; the drive check
+    ``conflicting-rows`` warns of them too).
 
     Parameters
     ----------
@@ -834,18 +941,25 @@ def build_drive(mapping: Mapping, raws: Sequence[RawChannel], name: str, params:
     name : str
         The drive's name.
     params : dict
-        Provenance; ``import_notes`` is added where rows were dropped or reordered.
+        Provenance; ``import_notes`` is added where rows were dropped or reordered, or repeat a time.
+    missing_as_gaps : bool
+        A row without a value (NaN, an empty cell) for a required input
+        other than the time is a gap in that sensor: dropped, and counted in
+        a note (README: non-finite samples are gaps), as a CSV logger leaves
+        a cell empty. False: refused, as a message of a live feed is
+        (:mod:`graphpos.live.rosbridge`, which takes it for malformed).
 
     Raises
     ------
     FileFormatError
-        A value that is not a number, not finite, not a whole id, outside
-        the drive's bounds, or an id not in the map: naming the file or
-        topic, the row or message and the field.
+        A value that is not a number, infinite, NaN (unless
+        ``missing_as_gaps``), not a whole id, beyond what its unit allows
+        (:attr:`Input.max_si`), outside the drive's bounds, or an id not in
+        the map: naming the file or topic, the row or message and the field.
     """
     channels, sources, notes = {}, {}, []
     for raw in raws:
-        channel, rows, found = _build_channel(raw, mapping.origin)
+        channel, rows, found = _build_channel(raw, mapping.origin, missing_as_gaps)
         channels[channel.kind] = channel
         sources[channel.kind] = (raw, rows)
         notes += found

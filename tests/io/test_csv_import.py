@@ -99,7 +99,6 @@ def _edit(path, line, column, value):
 BAD_CELLS = {
     "not a number": ("imu.csv", 5, "gyro_z", "abc", "imu.csv, line 5, column 'gyro_z' (yaw_rate): 'abc' is not a number"),
     "not finite": ("imu.csv", 7, "acc_x", "inf", "imu.csv, line 7, column 'acc_x' (accel_x): 'inf' is not a finite number"),
-    "empty": ("imu.csv", 9, "gyro_z", "", "imu.csv, line 9, column 'gyro_z' (yaw_rate): is empty"),
     "fraction of an id": ("ranges.csv", 3, "tag", "3.5", "ranges.csv, line 3, column 'tag' (tag_id): '3.5' is not a whole number"),
     "unknown tag": ("ranges.csv", 4, "tag", "999", "ranges.csv, line 4: tag id 999 is not in the tag map"),
     "implausible": ("vehicle.csv", 2, "speed", "1000", "vehicle.csv, line 2: speed_mps = 277.778 is outside the plausible range"),
