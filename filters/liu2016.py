@@ -53,7 +53,7 @@ from filters.models import kinematic as km
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
-from graphpos.estimator import require_positive_numbers
+from graphpos.estimator import require_valid_numbers
 from graphpos.ignition import StartState
 
 SUBSYSTEMS = ("rsu", "gnss", "dr")
@@ -123,7 +123,7 @@ class Liu2016Config:
     init_accel_sigma_mps2: float = 1.0
 
     def __post_init__(self) -> None:
-        require_positive_numbers(self, skip=("dr_min_speed_mps",))
+        require_valid_numbers(self, skip=("dr_min_speed_mps",))
         if self.dr_min_speed_mps < 0:
             raise ConfigError(f"dr_min_speed_mps must be >= 0, got {self.dr_min_speed_mps}")
         bad = [s for s in self.subsystems if s not in SUBSYSTEMS]

@@ -54,7 +54,7 @@ from filters.base import FilterEstimator
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError
 from graphpos.estimate import OutputRow
-from graphpos.estimator import require_positive_numbers
+from graphpos.estimator import require_valid_numbers
 
 
 @dataclass
@@ -106,7 +106,7 @@ class LmsFederatedConfig:
     max_isolated_tags: int = 2
 
     def __post_init__(self) -> None:
-        require_positive_numbers(self, skip=("global_step",))
+        require_valid_numbers(self, skip=("global_step",))
         if not 0.0 < self.consistency_probability <= 1.0:
             raise ConfigError(f"consistency_probability must lie in (0, 1], got {self.consistency_probability}")
         if self.local_taps < 1 or self.global_taps < 1:

@@ -60,7 +60,7 @@ from filters.models.angles import wrap_angle
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError, MissingChannelError
 from graphpos.estimate import Estimate, OutputRow
-from graphpos.estimator import require_positive_numbers
+from graphpos.estimator import require_valid_numbers
 from graphpos.ignition import StartState
 
 _DEG = math.pi / 180.0
@@ -125,7 +125,7 @@ class Song2014Config:
     lms: LmsFederatedConfig = field(default_factory=LmsFederatedConfig)
 
     def __post_init__(self) -> None:
-        require_positive_numbers(self)
+        require_valid_numbers(self)
         unknown = [m for m in self.models if m not in _MODELS]
         if not self.models or unknown:
             raise ConfigError(f"song2014 models must be chosen from {_MODELS}, got {self.models}")

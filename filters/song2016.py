@@ -46,7 +46,7 @@ from filters.models.vehicle import PE, PN, VE, VN, YAW
 from graphpos.drive import Drive
 from graphpos.errors import ConfigError
 from graphpos.estimate import OutputRow
-from graphpos.estimator import require_positive_numbers
+from graphpos.estimator import require_valid_numbers
 from graphpos.ignition import StartState
 
 _DEG = math.pi / 180.0
@@ -117,7 +117,7 @@ class VehicleFilterConfig:
     _signed_fields: ClassVar[tuple[str, ...]] = ()
 
     def __post_init__(self) -> None:
-        require_positive_numbers(self, skip=self._signed_fields)
+        require_valid_numbers(self, skip=self._signed_fields)
         require_probability(self.range_gate_probability)
 
 
@@ -155,7 +155,7 @@ class RfidEkfConfig:
     update_iterations: int = 3
 
     def __post_init__(self) -> None:
-        require_positive_numbers(self)
+        require_valid_numbers(self)
         require_probability(self.range_gate_probability)
         if self.update_iterations < 1:
             raise ConfigError(f"update_iterations must be at least 1, got {self.update_iterations}")

@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 
 from graphpos.errors import ConfigError
-from graphpos.estimator import require_positive_numbers
+from graphpos.estimator import require_valid_numbers
 from graphpos.ignition import MAX_ODOMETRY_GAP_S
 
 PARAMETERISATIONS = ("auto", "planar", "inertial")
@@ -300,7 +300,7 @@ class GraphConfig:
             raise ConfigError(f"range_offset must be one of {RANGE_OFFSET_MODES}, got {self.range_offset!r}")
         if self.range_delay not in RANGE_DELAY_MODES:
             raise ConfigError(f"range_delay must be one of {RANGE_DELAY_MODES}, got {self.range_delay!r}")
-        require_positive_numbers(self, skip=("max_delay_s",))
+        require_valid_numbers(self, skip=("max_delay_s",))
         for name in ("imu_rate_hz", "wheel_rate_hz"):
             rate = getattr(self, name)
             if rate is not None and not (isinstance(rate, (int, float)) and math.isfinite(rate) and rate > 0):
@@ -367,4 +367,4 @@ class RangesConfig:
     def __post_init__(self) -> None:
         if self.robust_loss not in ROBUST_LOSSES:
             raise ConfigError(f"robust_loss must be one of {ROBUST_LOSSES}, got {self.robust_loss!r}")
-        require_positive_numbers(self)
+        require_valid_numbers(self)

@@ -72,6 +72,11 @@ def test_values_take_the_field_type():
         ("imm-stekf", "fading.forgetting_factor", "1.5", "forgetting_factor must lie in"),
         ("imm-stekf", "lms.consistency_probability", "2", "consistency_probability must lie in"),
         ("fkf", "odometer_sigma_mps", "-0.3", "odometer_sigma_mps must be a positive"),
+        # 1 MHz on a 30 s drive ran for minutes towards 70 GB of rows
+        ("fusion-ekf", "output_rate_hz", "1e6", "output_rate_hz must be at most 1000 Hz"),
+        ("imm-stekf", "output_rate_hz", "2000", "output_rate_hz must be at most 1000 Hz"),
+        ("fkf", "output_rate_hz", "1001", "output_rate_hz must be at most 1000 Hz"),
+        ("graph-isam2", "keyframe_rate_hz", "5000", "keyframe_rate_hz must be at most 1000 Hz"),
     ],
 )
 def test_bad_values_are_config_errors(name, key, text, message):
