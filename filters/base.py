@@ -82,7 +82,7 @@ import numpy as np
 from graphpos.drive import CHANNEL_NAMES, Channel, Drive, Measurement
 from graphpos.estimate import Estimate, OutputRow
 from graphpos.estimator import Estimator
-from graphpos.ignition import MAX_ODOMETRY_GAP_S, NOT_STARTED, Ignition, IgnitionConfig, StartState
+from graphpos.ignition import MAX_ODOMETRY_GAP_S, Ignition, IgnitionConfig, StartState
 from graphpos.ranging.drive_models import ranges_by_field, reading_models
 from graphpos.standstill import StandstillGyroBias
 
@@ -375,7 +375,7 @@ class FilterEstimator(Estimator):
         if self._standstill.standstills:
             self.diagnostics["standstill"] = self._standstill.describe()
         if not self._ever_started:
-            self.diagnostics["not_started"] = NOT_STARTED
+            self.diagnostics["not_started"] = self._ignition.not_started()
             self.diagnostics["ignition_attempts"] = self._ignition.attempts
         return Estimate.from_rows(
             self.name,
