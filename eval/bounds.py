@@ -101,6 +101,12 @@ class DriveBound:
         v = self.rms_m(window, kind)
         return f"{v:.{digits}f}" if np.isfinite(v) else NO_BOUND
 
+    @property
+    def is_limit(self) -> bool:
+        """Whether the bound is a lower limit: built with the drive's own noise levels (a simulated drive), not
+        graph-batch's defaults (:func:`graphpos.bound.pcrb.knows_noise_levels`)."""
+        return self.bound is not None and self.bound.diagnostics.get("noise_levels") == "the drive's"
+
     def windows(self) -> list[str]:
         """:data:`~eval.metrics.WHOLE` and the labels of the drive's windows (none without a bound)."""
         if self.bound is None:
@@ -119,7 +125,7 @@ class DriveBound:
         windows = list(windows)
         return {"drive": self.drive_name, "layout": self.layout, "reason": self.reason,
                 **{f"{kind}_rms_m": {w: self.rms_m(w, kind) for w in windows} for kind in KINDS},
-                "timing_s": self.timing(),
+                "timing_s": self.timing(), "is_limit": self.is_limit,
                 "keyframes": self.bound.diagnostics.get("keyframes") if self.bound is not None else None}
 
 
@@ -176,7 +182,7 @@ def drive_bounds(keys: list[tuple[Any, str | None]], workers: int | None = None,
     """:func:`source_bound` of each (source, layout), computed in the executor's workers; in the order of ``keys``."""
     if not keys:
         return []
-    with executor(workers, scheduler) as pool:
+    with executor(workers, scheduler, tasks=len(keys)) as pool:
         futures = [pool.submit(source_bound, *key) for key in keys]
         out = []
         for (source, layout), fut in zip(keys, futures):

@@ -70,9 +70,23 @@ def require_truth(drive: Drive) -> None:
         raise MissingChannelError(f"evaluate needs truth: drive '{drive.name}' has no truth channel")
 
 
+#: Under this share of the drive's truth covered by its outputs (:func:`eval.metrics.coverage`), a run's figures are
+#: flagged as over part of the drive.
+MIN_COVERAGE = 0.9
+
+
 def run_warnings(r: JobResult) -> list[str]:
-    """What an estimator said of its run (``diagnostics["warnings"]``: e.g. a drive too short to calibrate the noise on)."""
-    return list(((r.metrics or {}).get("diagnostics") or {}).get("warnings", []))
+    """What an estimator said of its run (``diagnostics["warnings"]``: e.g. a drive too short to calibrate the noise on),
+    and whether its outputs cover less than :data:`MIN_COVERAGE` of the drive (its figures are over that part only)."""
+    metrics = r.metrics or {}
+    lines = list((metrics.get("diagnostics") or {}).get("warnings", []))
+    whole = (metrics.get("windows") or {}).get("whole") or {}
+    share = whole.get("coverage")
+    if share is not None and share == share and share < MIN_COVERAGE:
+        why = (metrics.get("diagnostics") or {}).get("not_started")
+        lines.append(f"its outputs cover {100 * share:.0f} % of the drive's truth span, and its figures are over that part only"
+                     + (f" ({why})" if why and share == 0 else " (a late start, a track that ended early, or gaps: see its diagnostics)"))
+    return lines
 
 
 def result_record(r: JobResult) -> dict[str, Any]:
@@ -150,7 +164,8 @@ def with_bound(header: list[str], rows: list[list[str]], results: list[JobResult
     for row in rows:
         r = by_name.get(row[0])
         eff = result_efficiency(r, bound, window) if r is not None else math.nan
-        out.append(row + [f"{fmt(eff)} ({bound_label(row[0])})" if math.isfinite(eff) else NO_BOUND])
+        label = bound_label(row[0]) + ("" if bound.is_limit else ", default noise levels")
+        out.append(row + [f"{fmt(eff)} ({label})" if math.isfinite(eff) else NO_BOUND])
     column = header.index("RMS [m]") if bound.ok else 1
     for kind, label in BOUND_LABELS.items():
         line = [label] + [""] * len(header)
@@ -175,7 +190,9 @@ BOUND_TEXT = ("Bound rows: the posterior Cramer-Rao bound on the position error 
               "of sqrt(trace) of the east/north covariance bound. Smoother: from the whole drive; filtering: from the "
               "data up to each epoch. RMS / bound: each estimator's RMS over its matching bound's (the smoother "
               "bound for graph-batch and graph-fixed-lag-smoothed, the filtering bound for the causal estimators); "
-              "1 is the best the data allow. Drives without simulator noise levels use graph-batch's defaults.")
+              "1 is the best the data allow. A drive that does not carry its sensors' noise levels (not simulated: "
+              "recorded, imported) gets graph-batch's default noise levels instead: its bound is a reference, not a "
+              "limit, and an estimator may beat it (below 1; the cells say \"default noise levels\").")
 
 
 def add_drive_sections(report: Report, drive: Drive, results: list[JobResult], sub: Path,

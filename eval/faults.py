@@ -292,7 +292,7 @@ def fault_study(scenario: str = DEFAULT_SCENARIO, estimators: list[str] | None =
     applicable = [k for k, s in specs.items() if isinstance(s, dict)]
     jobs = [(seed, fault, est) for seed in range(seeds) for fault in [None, *applicable] for est in names]
     runs: dict[tuple[int, str | None, str], dict[str, Any]] = {}
-    with executor(workers) as pool:
+    with executor(workers, tasks=len(jobs)) as pool:
         futures = {pool.submit(run_one, fault_source(scenario, seed, duration_s, fault, specs.get(fault)), est): (seed, fault, est)
                    for seed, fault, est in jobs}
         with tqdm(total=len(futures), desc="fault-study", unit="run", disable=not progress, leave=False) as bar:

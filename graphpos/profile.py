@@ -62,6 +62,14 @@ PLAUSIBLE_LIMITS = {
 }
 
 
+class ImplausibleProfileError(ConfigError):
+    """A profile field outside :data:`PLAUSIBLE_LIMITS`: ``name``, ``value`` and the ``limits`` (lo, hi)."""
+
+    def __init__(self, name: str, value: Any, limits: tuple[float, float]):
+        self.name, self.value, self.limits = name, value, limits
+        super().__init__(f"sensor profile: {name} = {value!r} is outside the plausible range [{limits[0]:g}, {limits[1]:g}]")
+
+
 @dataclass(frozen=True)
 class SensorProfile:
     """Corrections and noise levels of one sensor set (see the module docstring).
@@ -119,7 +127,7 @@ class SensorProfile:
         for name, (lo, hi) in PLAUSIBLE_LIMITS.items():
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
-                raise ConfigError(f"sensor profile: {name} = {value!r} is outside the plausible range [{lo:g}, {hi:g}]")
+                raise ImplausibleProfileError(name, value, (lo, hi))
         for name in ("range_sigma0_m", "range_sigma_slope", "range_sigma_scale", "heading_noise_radps_per_sqrt_s", "turn_scale_density_per_sqrt_s"):
             value = getattr(self, name)
             if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):

@@ -121,6 +121,13 @@ class Bound:
         return np.interp(np.asarray(t_s, dtype=float), self.t_s, self.sqrt_trace(kind), left=np.nan, right=np.nan)
 
 
+def knows_noise_levels(drive: Drive) -> bool:
+    """Whether the drive carries its sensors' noise levels (a simulated drive's ``params``), which make the bound a
+    lower limit; on other drives :func:`bound_config` keeps graph-batch's defaults, a reference an estimator may beat."""
+    p = drive.params or {}
+    return all(isinstance(p.get(k), dict) for k in ("imu", "wheel", "compass"))
+
+
 def bound_config(drive: Drive, base: GraphConfig | None = None) -> GraphConfig:
     """graph-batch's config with the drive's sensor noise levels and neither self-calibration nor robust losses.
 
@@ -137,10 +144,10 @@ def bound_config(drive: Drive, base: GraphConfig | None = None) -> GraphConfig:
     c = base or GraphConfig()
     c = dataclasses.replace(c, self_calibrate=False, range_scale="off", wheel_scale="off", robust_loss="none", compass_loss="none",
                             range_sigma_scale=1.0, learn_online=False, output_covariance=False)
-    p = drive.params or {}
-    imu, wheel, compass = p.get("imu"), p.get("wheel"), p.get("compass")
-    if not (isinstance(imu, dict) and isinstance(wheel, dict) and isinstance(compass, dict)):
+    if not knows_noise_levels(drive):
         return c
+    p = drive.params
+    imu, wheel, compass = p["imu"], p["wheel"], p["compass"]
     values: dict[str, float] = {}
     if "accel_sigma_mps2" in imu:
         values["accel_sigma_mps2"] = max(float(imu["accel_sigma_mps2"]), TINY)
@@ -251,7 +258,8 @@ def position_bound(drive: Drive, layout: str | None = None, range_model: Any = N
     t_filtering = time.perf_counter() - t2
     diagnostics = {"keyframes": n, "factors": graph.size(), "start_keyframe": release_keyframe, "parameterisation": model.name,
                    "build_s": t_build, "smoother_s": t_smoother, "filtering_s": t_filtering,
-                   "total_s": time.perf_counter() - t0, "config": dataclasses.asdict(config)}
+                   "total_s": time.perf_counter() - t0, "config": dataclasses.asdict(config),
+                   "noise_levels": "the drive's" if knows_noise_levels(drive) else "graph-batch's defaults"}
     return Bound(t_k, smoother, filt, tuple(drive.windows), diagnostics)
 
 

@@ -78,6 +78,18 @@ def add_output_option(p: argparse.ArgumentParser, metavar: str, help: str, *alia
     p.add_argument("-o", "--out", *aliases, dest="output", type=Path, required=True, metavar=metavar, help=help)
 
 
+def estimator_names(values: list[str]) -> list[str]:
+    """The estimator names of repeated ``-e`` options, each of which may be a comma-separated list
+    (``-e fusion-ekf,dr -e graph-batch``), in order, without blanks."""
+    return [n.strip() for v in values for n in v.split(",") if n.strip()]
+
+
+def progress_line(command: str, message: str) -> None:
+    """Say on stderr what a long step is doing, when stderr is a terminal (a person waiting; logs and pipes stay clean)."""
+    if sys.stderr.isatty():
+        print(f"graphpos {command}: {one_line(message)}", file=sys.stderr, flush=True)
+
+
 def one_line(text: str) -> str:
     """``text`` with every character that is not printable (newline, tab, escape, a byte of a file
     name that is not UTF-8) shown escaped as ``repr`` shows it, so that a message stays one line."""

@@ -16,7 +16,7 @@ import math
 import sys
 from pathlib import Path
 
-from graphpos.cli import add_output_option, one_line, warning_line
+from graphpos.cli import add_output_option, one_line, progress_line, warning_line
 
 
 def register(sub) -> None:
@@ -56,12 +56,13 @@ def _calibrate(args: argparse.Namespace) -> int:
     from graphpos.io.outputs import check_output_file
     from graphpos.profile import SensorProfile
 
-    check_output_file(args.output)
+    check_output_file(args.output, inputs={"drive": args.drive}, kind="json")
     pose = initial_pose(args)
     drive = read_drive(args.drive)
     with naming_file(args.drive):
         if args.layout:
             drive.tags.layout(args.layout)
+        progress_line("calibrate", f"self-calibrating graph-batch on {drive.name} ({drive.duration_s:.0f} s: two or three solves) ...")
         est = ESTIMATORS["graph-batch"](layout=args.layout, initial_pose=pose).run(drive.without_truth())
     if "profile" not in est.diagnostics:
         raise EstimationError(f"{args.drive}: no profile found: {est.diagnostics.get('not_started', 'the drive has no odometry to calibrate')}")

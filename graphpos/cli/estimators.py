@@ -17,15 +17,20 @@ with truth or without, the exports of :func:`graphpos.io.exports.write_exports`
 - ``estimates_ros2/``: a ROS 2 bag, each estimate (and the truth) as
   ``nav_msgs/Odometry`` on ``/graphpos/NAME/odometry`` (:mod:`graphpos.io.ros2_bag`);
 - ``run.json``: the start pose given, ``failed`` (the estimators that
-  raised) and per estimator its ``status`` (``ok`` or ``failed``), settings
-  and config, and when it finished its wall time, output rate, where it
-  started (``start``, or ``not_started``) and diagnostics, when it failed
+  raised), ``not_applicable`` (those the drive lacks channels for) and per
+  estimator its ``status`` (``ok``, ``failed`` or ``not_applicable``), settings
+  and config, and when it finished its wall time, ``real_time_factor``
+  (wall time over the drive's duration, as in ``results.json``), output
+  rate, where it started (``start``, or ``not_started``) and diagnostics, when it failed
   its ``error`` (and the ``traceback`` of an internal error).
 
 The estimators see the drive without its truth (truth is for scoring only,
 issue 13: :meth:`graphpos.drive.Drive.without_truth`). An estimator
-lacking a channel it needs refuses the drive before any estimator runs
-(status 2, nothing written). One estimator's failure while it runs does not
+lacking a channel it needs is not run: a warning line names it and the
+channel, ``run.json`` gives it the status ``not_applicable`` and lists it
+under ``not_applicable``, and the others run (as ``evaluate`` marks such a
+run n/a); when none can run, each is one error line, status 2 and nothing
+written. One estimator's failure while it runs does not
 cost the others their results: each failure is one line on
 stderr naming the estimator and the reason, the others' files are written,
 and the status is 1. When every estimator fails nothing is written (status
@@ -46,8 +51,8 @@ import traceback
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option, error_line, one_line, warning_line
-from graphpos.errors import ConfigError, GraphposError, naming_file
+from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option, error_line, estimator_names, one_line, progress_line, warning_line
+from graphpos.errors import ConfigError, GraphposError, MissingChannelError, naming_file
 from graphpos.estimate import Estimate
 
 if TYPE_CHECKING:
@@ -71,7 +76,7 @@ def register(sub) -> None:
                                    "nav_msgs/Odometry) and run.json.")
     p.add_argument("drive", type=Path, metavar="DRIVE.mcap", help="drive file (see `graphpos simulate`)")
     p.add_argument("-e", "--estimator", dest="estimators", action="append", required=True, metavar="NAME",
-                   help="estimator name (repeat for several; see `graphpos estimators`)")
+                   help="estimator name (repeat, or comma-separate; see `graphpos estimators`)")
     p.add_argument("--layout", metavar="L", help="use only the tags of this named layout (e.g. optimized)")
     p.add_argument("--range-model", type=Path, metavar="F",
                    help="range model JSON (from `graphpos ranging fit`); default: the drive's default model")
@@ -167,7 +172,9 @@ def _run(args: argparse.Namespace) -> int:
     from graphpos.ranging import load_range_model
     from graphpos.registry import make_estimator
 
-    names = list(dict.fromkeys(args.estimators))
+    names = list(dict.fromkeys(estimator_names(args.estimators)))
+    if not names:
+        raise ConfigError("no estimator named (-e NAME; see `graphpos estimators`)")
     if "truth" in names:
         raise ConfigError("'truth' is not an estimator name (the truth's exports are truth.*)")
     check_output_folder(args.output)  # before reading a long drive
@@ -182,16 +189,22 @@ def _run(args: argparse.Namespace) -> int:
     estimators = [make_estimator(n, settings=settings.get(n), layout=args.layout, range_model=range_model, initial_pose=pose,
                                  profile=sensor_profile) for n in names]
     blind = drive.without_truth()  # truth is for scoring only (issue 13)
-    with naming_file(args.drive):
-        if args.layout:
+    if args.layout:
+        with naming_file(args.drive):
             drive.tags.layout(args.layout)  # a clear error for an unknown layout
-        for est in estimators:
-            est.check(blind)  # an estimator the drive lacks channels for: refused before any runs
-    outcomes = {est.name: _run_one(est, blind, args.drive) for est in estimators}
-    failed = {name: o for name, o in outcomes.items() if not isinstance(o, Estimate)}
+    outcomes = {}
+    for i, est in enumerate(estimators):
+        outcomes[est.name] = _not_applicable(est, blind, args.drive)
+        if outcomes[est.name] is None:
+            progress_line("run", f"{est.name} ({i + 1} of {len(estimators)}) on {drive.name}, {drive.duration_s:.0f} s ...")
+            outcomes[est.name] = _run_one(est, blind, args.drive)
+    failed = {name: o for name, o in outcomes.items() if isinstance(o, Failure) and not o.not_applicable}
+    skipped = {name: o for name, o in outcomes.items() if isinstance(o, Failure) and o.not_applicable}
     for name, failure in failed.items():
         print(error_line("run", f"{name} failed: {failure.error}"), file=sys.stderr)
-    if len(failed) == len(outcomes):  # nothing to write
+    if len(failed) + len(skipped) == len(outcomes):  # nothing to write
+        for failure in skipped.values():
+            print(error_line("run", failure.error), file=sys.stderr)
         return 2 if all(f.traceback is None for f in failed.values()) else 1
     with output_folder(args.output, "run.json") as folder:
         _write_run(folder, args, drive, estimators, outcomes, settings, pose, sensor_profile, drive_warnings)
@@ -202,6 +215,10 @@ def _run(args: argparse.Namespace) -> int:
             print(f"{e.name:<18} {len(e):6d} outputs  {e.wall_time_s:7.3f} s  -> {csv}{note}")
             for line in e.diagnostics.get("warnings", []):  # e.g. a drive too short to calibrate the noise on
                 print(warning_line("run", f"{e.name}: {line}"), file=sys.stderr)
+            if e.diagnostics.get("not_started"):
+                print(warning_line("run", f"{e.name}: {e.diagnostics['not_started']}"), file=sys.stderr)
+    for failure in skipped.values():
+        print(warning_line("run", f"not run: {failure.error}"), file=sys.stderr)
     for line in drive_warnings:  # last, so that a refusal stays one line
         print(warning_line("run", line), file=sys.stderr)
     return 1 if failed else 0
@@ -209,10 +226,22 @@ def _run(args: argparse.Namespace) -> int:
 
 @dataclasses.dataclass
 class Failure:
-    """An estimator that raised: the one-line reason, and the traceback when it was a bug."""
+    """An estimator that raised, or that the drive lacks channels for (``not_applicable``): the one-line
+    reason, and the traceback when it was a bug."""
 
     error: str
     traceback: str | None = None
+    not_applicable: bool = False
+
+
+def _not_applicable(est, drive, source: Path) -> "Failure | None":
+    """Why ``est`` cannot run on ``drive`` (read from ``source``; a channel it needs is missing or empty), or None."""
+    try:
+        with naming_file(source):
+            est.check(drive)
+    except MissingChannelError as exc:
+        return Failure(str(exc), not_applicable=True)
+    return None
 
 
 def _run_one(est, drive, source: Path) -> "Estimate | Failure":
@@ -242,14 +271,16 @@ def _write_run(folder: Path, args: argparse.Namespace, drive, estimators, outcom
         e = outcomes[est.name]
         common = {"settings": settings.get(est.name, {}), "config": config_dict(est.config)}
         if isinstance(e, Failure):
-            records[est.name] = {"status": "failed", "error": e.error, "traceback": e.traceback, **common}
+            status = "not_applicable" if e.not_applicable else "failed"
+            records[est.name] = {"status": status, "error": e.error, "traceback": e.traceback, **common}
             continue
         records[est.name] = {
             "status": "ok",
             "start": e.diagnostics.get("start"),
             "not_started": e.diagnostics.get("not_started"),
             "wall_time_s": e.wall_time_s,
-            "realtime_factor": drive.duration_s / e.wall_time_s if e.wall_time_s > 0 else None,
+            # wall time over drive time, as results.json and the reports' RTF (under 1: faster than real time)
+            "real_time_factor": e.wall_time_s / drive.duration_s if drive.duration_s > 0 else None,
             "outputs": len(e),
             "rate_hz": e.rate_hz if e.rate_hz == e.rate_hz else None,
             "has_velocity": e.has_velocity,
@@ -263,7 +294,8 @@ def _write_run(folder: Path, args: argparse.Namespace, drive, estimators, outcom
         "range_model": str(args.range_model) if args.range_model else None,
         "initial_pose": start_pose_record(pose),
         "profile": sensor_profile.to_dict() if sensor_profile is not None else None,
-        "failed": [name for name, e in outcomes.items() if isinstance(e, Failure)],
+        "failed": [name for name, e in outcomes.items() if isinstance(e, Failure) and not e.not_applicable],
+        "not_applicable": [name for name, e in outcomes.items() if isinstance(e, Failure) and e.not_applicable],
         "drive_warnings": drive_warnings,
         "estimators": records,
     }

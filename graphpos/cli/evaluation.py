@@ -20,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option, one_line, warning_line
+from graphpos.cli import OUTPUT_FOLDER_HELP, add_output_option, estimator_names, one_line, warning_line
 from graphpos.cli.estimators import add_initial_pose_option, add_settings_options, estimator_settings, initial_pose
 
 
@@ -85,10 +85,6 @@ def register(sub) -> None:
     p.set_defaults(func=_layout_study)
 
 
-def _names(values: list[str]) -> list[str]:
-    return [n.strip() for v in values for n in v.split(",") if n.strip()]
-
-
 def _finish(outcome, started: float, command: str) -> int:
     failed = outcome.failures
     took = time.perf_counter() - started
@@ -110,7 +106,7 @@ def _evaluate(args) -> int:
 
     started = time.perf_counter()
     check_output_folder(args.output)
-    names = _names(args.estimators)
+    names = estimator_names(args.estimators)
     settings = estimator_settings(args, names)
     from graphpos.cli.calibrate import profile as profile_of
 
@@ -151,6 +147,6 @@ def _layout_study(args) -> int:
     started = time.perf_counter()
     check_output_folder(args.output)
     outcome = layout_study(args.scenario, args.output, seeds=args.seeds,
-                           estimators=_names(args.estimators) if args.estimators else None,
+                           estimators=estimator_names(args.estimators) if args.estimators else None,
                            workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
     return _finish(outcome, started, "layout-study")

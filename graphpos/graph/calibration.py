@@ -547,6 +547,20 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
                                            "turned_rad": turned})
 
 
+def implausible_calibration(exc, drive_name: str) -> str:
+    """What to tell a user whose drive self-calibrated to a correction no sensor has (``exc``: an
+    :class:`~graphpos.profile.ImplausibleProfileError`).
+
+    The profile's plausibility check said only ``sensor profile: range_offset_m = -25.05 is outside the
+    plausible range``, to a user who had given no profile, when a wheel logged in km/h (read as m/s) or
+    ranges in cm made the ranges and the odometry disagree beyond any calibration.
+    """
+    return (f"self-calibration on '{drive_name}' found {exc.name} = {exc.value:.4g}, outside the plausible "
+            f"[{exc.limits[0]:g}, {exc.limits[1]:g}]: the drive's ranges, odometry and compass disagree beyond any calibration, "
+            f"most often a unit (wheel speed in km/h, ranges in cm, a rate in deg/s; set it in the import mapping); "
+            f"`graphpos info` compares each sensor with the truth when the drive has one")
+
+
 def undetermined_noise_warning(profile) -> str | None:
     """What to tell a user whose drive did not determine its odometry's noise (:data:`MIN_NOISE_FIT_DOF`), or None.
 

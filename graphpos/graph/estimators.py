@@ -269,7 +269,8 @@ class _GraphEstimator(Estimator):
     def _estimate(self, rows: list[OutputRow]) -> Estimate:
         times = np.asarray(self.update_times_s) if self.update_times_s else np.zeros(1)
         if not self.builder.started:
-            self.builder.diagnostics["not_started"] = NOT_STARTED
+            ignition = self.builder.ignition
+            self.builder.diagnostics["not_started"] = ignition.not_started() if ignition is not None else NOT_STARTED
         standstill = self.builder.standstill
         diagnostics = {
             **self.builder.diagnostics,
@@ -382,7 +383,8 @@ class GraphIsam2(_GraphEstimator):
         return out
 
     def _learn(self, k: int) -> None:
-        from graphpos.graph.calibration import estimate_range_scale, fit_profile
+        from graphpos.graph.calibration import estimate_range_scale, fit_profile, implausible_calibration
+        from graphpos.profile import ImplausibleProfileError
 
         b = self.builder
         what = f"{self.name} on '{self._drive_name}' (learning at keyframe {k})"
@@ -402,6 +404,12 @@ class GraphIsam2(_GraphEstimator):
             found = fit_profile(b, values, c, self._drive_name, since_keyframe=self._learnt_k)
             if found is not None and found.compass_bias_rad:
                 found = dataclasses.replace(found, compass_bias_rad=self._confirmed_compass_bias(found.compass_bias_rad, graph, values, what))
+        except ImplausibleProfileError as exc:
+            # online, one learning that no sensor can have is left out (and said), not the run's end
+            found = None
+            said = b.diagnostics.setdefault("warnings", [])
+            if not any(line.startswith("self-calibration on") for line in said):
+                said.append(f"{implausible_calibration(exc, self._drive_name)} (at keyframe {k}; that learning was left out)")
         finally:
             b.estimate_compass_bias(None, values)  # the final smoothing's graph has the compass as corrected
         if found is None:
@@ -669,6 +677,16 @@ class GraphBatch(_GraphEstimator):
         """
         if self.profile is not None or not self.config.self_calibrate:
             return super().run(drive)
+        from graphpos.graph.calibration import implausible_calibration
+        from graphpos.profile import ImplausibleProfileError
+
+        try:
+            return self._self_calibrated(drive)
+        except ImplausibleProfileError as exc:
+            raise EstimationError(implausible_calibration(exc, drive.name)) from None
+
+    def _self_calibrated(self, drive: Drive) -> Estimate:
+        """:meth:`run`'s self-calibration (two or three solves)."""
         from graphpos.graph.calibration import fit_profile, fit_range_terms, undetermined_noise_warning
 
         c = self.config

@@ -8,8 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from eval.evaluate import evaluate
-from eval.execution import Job, execute
+from eval.evaluate import evaluate, run_warnings
+from eval.execution import Job, execute, executor
 from graphpos.errors import MissingChannelError
 from graphpos.io import read_drive, read_estimates
 
@@ -66,6 +66,20 @@ def test_failures_are_reported_not_raised(tmp_path, drive, test_estimators):
     assert "RuntimeError" in rec["error"] and "Traceback" in rec["traceback"]
 
 
+def test_a_run_whose_outputs_cover_part_of_the_drive_is_flagged(tmp_path, drive, test_estimators):
+    """A sensor log that ended early ended the track: its RMS was over 9 s of 30 s and nothing said so."""
+    t0, t1 = drive.truth.t_s[0], drive.truth.t_s[-1]
+    cut = drive.replace(channels={**drive.channels, "gnss": drive.gnss.between(t0, t0 + (t1 - t0) / 3)})
+    outcome = evaluate([(cut, cut)], ["noisy-truth"], tmp_path / "cut", workers=1, progress=False, mcap=False)
+    whole = outcome.results[0].metrics["windows"]["whole"]
+    assert 0.3 < whole["coverage"] < 0.5  # a third, and the outputs stand for the truth a second either side
+    said = f"its outputs cover {100 * whole['coverage']:.0f} % of the drive's truth span"
+    assert any(said in line for line in run_warnings(outcome.results[0]))
+    assert said in (tmp_path / "cut" / "report.md").read_text()
+    full = evaluate([(drive, drive)], ["noisy-truth"], tmp_path / "full", workers=1, progress=False, mcap=False)
+    assert full.results[0].metrics["windows"]["whole"]["coverage"] == 1.0 and run_warnings(full.results[0]) == []
+
+
 def test_drive_without_truth_is_refused(tmp_path, drive, test_estimators):
     bare = drive.replace(channels={"wheel": drive.wheel})
     with pytest.raises(MissingChannelError, match="evaluate needs truth"):
@@ -89,6 +103,14 @@ def test_execute_keeps_job_order(drive, test_estimators):
     results = execute(jobs, workers=2, progress=False)
     assert [r.job.estimator for r in results] == ["broken", "noisy-truth", "broken"]
     assert [r.ok for r in results] == [False, True, False]
+
+
+def test_the_pool_starts_no_more_processes_than_it_has_tasks():
+    """--workers 1000 for one run started 1000 processes (100 s against 5)."""
+    with executor(workers=1000, tasks=2) as pool:
+        assert pool._max_workers == 2
+    with executor(workers=1, tasks=5) as pool:
+        assert pool._max_workers == 1
 
 
 def test_two_drives_of_the_same_name_get_their_own_folders(tmp_path, drive, make_drive, test_estimators):
@@ -132,6 +154,20 @@ def test_evaluate_reports_the_bound_and_efficiency(tmp_path):
         assert 0 < smoother <= filtering * (1 + 1e-9)
         for name in ("fusion-ekf", "graph-batch"):
             assert b["efficiency"][name][window] > 0
+    assert b["is_limit"] and "default noise levels" not in md.split("Bound rows:")[0]
+
+
+def test_a_bound_with_default_noise_levels_is_called_a_reference():
+    """An imported drive carries no noise levels: its bound (graph-batch's defaults) is no lower limit, and
+    estimators scored 0.8 of it on a CSV import under a report that said 1 is the best the data allow."""
+    from eval.bounds import drive_bound
+    from graphpos.sim import simulate
+
+    drive = simulate("paper-straight", seed=0, duration_s=20.0)
+    assert drive_bound(drive).is_limit
+    imported = drive.replace(params={})
+    bound = drive_bound(imported)
+    assert bound.ok and not bound.is_limit and bound.bound.diagnostics["noise_levels"] == "graph-batch's defaults"
 
 
 def test_rfid_only_rows_say_their_bound_is_of_more_sensors():
