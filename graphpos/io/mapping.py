@@ -85,7 +85,7 @@ optional, ids whole; a compass yaw or tag bearing within +-4 pi in the
 drive's unit, so that degrees read as radians are refused, suggesting the
 unit, not wrapped into nonsense; a yaw rate in deg/s read as rad/s is
 refused beyond the drive's +-10 rad/s); an error names the file or topic,
-the row or message and the field. A CSV importer's row without a
+the row or message and the field. A recording's row (CSV) or message (bag) without a
 required value (an empty cell, NaN) is a gap: dropped and counted
 (:func:`build_drive`'s ``missing_as_gaps``). Rows are sorted by time
 (stably); a row that repeats an earlier one exactly is dropped, rows of

@@ -95,6 +95,24 @@ def test_other_message_types_and_frame_names(tmp_path):
     assert (drive.rfid.tag_id == 7).all() and np.allclose(drive.rfid.arrival_s - drive.rfid.t_s, 0.1, atol=1e-6)
 
 
+def test_a_nan_in_a_message_is_a_gap_dropped_and_counted(tmp_path):
+    """As in a CSV log (README: non-finite samples are gaps): a bag whose yaw rate is NaN in one message loses that
+    message's row with a note, instead of refusing the whole import."""
+    w = BagWriter("ros1")
+    for i in range(6):
+        t = 0.5 * i
+        twist = make(w.typestore, "geometry_msgs/msg/Twist", linear=w.vector(x=2.0), angular=w.vector(z=np.nan if i == 3 else 0.1))
+        w.add("/cmd", "geometry_msgs/msg/TwistStamped", t, header=w.header(t), twist=twist)
+    bag = w.write(tmp_path / "nan.bag")
+    (tmp_path / "tags.yaml").write_text("- {tag_id: 7, east_m: 10.0, north_m: 2.0}\n")
+    mapping = tmp_path / "m.toml"
+    mapping.write_text('[drive]\ntags = "tags.yaml"\n[imu]\ntopic = "/cmd"\n[wheel]\ntopic = "/cmd"\n')
+    drive = import_rosbag(bag, mapping)
+    assert len(drive.imu) == 5 and np.allclose(drive.imu.yaw_rate_radps, 0.1) and len(drive.wheel) == 6
+    assert any("1 of 6 rows have no value" in note and "gaps in that sensor; dropped" in note
+               for note in drive.params["import_notes"])
+
+
 @pytest.mark.parametrize("fields, want", [
     ("", "field 'position_covariance' (covariance): east/north variances 0, 0 are not positive (unknown?); give fields.sigma"),
     ("fields = { sigma = 3.0 }", 3.0),
