@@ -105,7 +105,7 @@ class DriveBound:
     def is_limit(self) -> bool:
         """Whether the bound is a lower limit: built with the drive's own noise levels (a simulated drive), not
         graph-batch's defaults (:func:`graphpos.bound.pcrb.knows_noise_levels`)."""
-        return self.bound is not None and self.bound.diagnostics.get("noise_levels") == "the drive's"
+        return self.bound is not None and bool(self.bound.diagnostics.get("noise_levels_known"))
 
     def windows(self) -> list[str]:
         """:data:`~eval.metrics.WHOLE` and the labels of the drive's windows (none without a bound)."""

@@ -82,7 +82,7 @@ def run_warnings(r: JobResult) -> list[str]:
     lines = list((metrics.get("diagnostics") or {}).get("warnings", []))
     whole = (metrics.get("windows") or {}).get("whole") or {}
     share = whole.get("coverage")
-    if share is not None and share == share and share < MIN_COVERAGE:
+    if share is not None and not math.isnan(share) and share < MIN_COVERAGE:
         why = (metrics.get("diagnostics") or {}).get("not_started")
         lines.append(f"its outputs cover {100 * share:.0f} % of the drive's truth span, and its figures are over that part only"
                      + (f" ({why})" if why and share == 0 else " (a late start, a track that ended early, or gaps: see its diagnostics)"))

@@ -330,10 +330,10 @@ def coverage(truth_t_s: np.ndarray, scored_t_s: np.ndarray) -> float:
     if scored.size == 0:
         return 0.0
     period = float(np.median(np.diff(scored))) if scored.size > 1 else 0.0
-    tolerance = max(COVERAGE_TOLERANCE_S, 1.5 * period)
-    i = np.clip(np.searchsorted(scored, truth_t_s), 1, scored.size) if scored.size > 1 else np.ones(truth_t_s.size, dtype=int)
-    nearest = np.minimum(np.abs(truth_t_s - scored[i - 1]), np.abs(scored[np.minimum(i, scored.size - 1)] - truth_t_s))
-    return float(np.mean(nearest <= tolerance))
+    i = np.searchsorted(scored, truth_t_s)  # the outputs either side of each truth epoch
+    before, after = scored[np.maximum(i - 1, 0)], scored[np.minimum(i, scored.size - 1)]
+    nearest = np.minimum(np.abs(truth_t_s - before), np.abs(after - truth_t_s))
+    return float(np.mean(nearest <= max(COVERAGE_TOLERANCE_S, 1.5 * period)))
 
 
 def error_series(drive: Drive, estimate: Estimate) -> dict[str, np.ndarray]:

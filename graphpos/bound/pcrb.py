@@ -259,7 +259,7 @@ def position_bound(drive: Drive, layout: str | None = None, range_model: Any = N
     diagnostics = {"keyframes": n, "factors": graph.size(), "start_keyframe": release_keyframe, "parameterisation": model.name,
                    "build_s": t_build, "smoother_s": t_smoother, "filtering_s": t_filtering,
                    "total_s": time.perf_counter() - t0, "config": dataclasses.asdict(config),
-                   "noise_levels": "the drive's" if knows_noise_levels(drive) else "graph-batch's defaults"}
+                   "noise_levels_known": knows_noise_levels(drive)}
     return Bound(t_k, smoother, filt, tuple(drive.windows), diagnostics)
 
 

@@ -369,6 +369,7 @@ class GraphIsam2(_GraphEstimator):
         self._learnt_k = 0
         self._learning: list[dict] = []
         self._compass_seen: tuple[float, float] | None = None  # the total compass bias the last learning found, and its sigma
+        self._implausible_said = False  # whether a learning left out as implausible has been said
 
     def _apply(self, increments: list[Increment]) -> list[OutputRow]:
         out = super()._apply(increments)
@@ -407,9 +408,10 @@ class GraphIsam2(_GraphEstimator):
         except ImplausibleProfileError as exc:
             # online, one learning that no sensor can have is left out (and said), not the run's end
             found = None
-            said = b.diagnostics.setdefault("warnings", [])
-            if not any(line.startswith("self-calibration on") for line in said):
-                said.append(f"{implausible_calibration(exc, self._drive_name)} (at keyframe {k}; that learning was left out)")
+            if not self._implausible_said:  # once a drive
+                self._implausible_said = True
+                b.diagnostics.setdefault("warnings", []).append(
+                    f"{implausible_calibration(exc, self._drive_name)} (at keyframe {k}; that learning was left out)")
         finally:
             b.estimate_compass_bias(None, values)  # the final smoothing's graph has the compass as corrected
         if found is None:

@@ -80,4 +80,4 @@ def import_csv(folder: str | os.PathLike, mapping: str | os.PathLike) -> Drive:
         raws.append(_raw(cm, path, tables[path, cm.delimiter]))
     params = {"source": "csv", "folder": folder.resolve().name, "mapping": loaded.path.name,
               "files": {cm.channel: cm.source for cm in loaded.channels.values()}}
-    return build_drive(loaded, raws, name=folder.resolve().name, params=params, missing_as_gaps=True)
+    return build_drive(loaded, raws, name=folder.resolve().name, params=params)

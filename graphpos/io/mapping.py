@@ -925,7 +925,7 @@ def _build_channel(raw: RawChannel, origin: GeoOrigin | None, missing_as_gaps: b
 
 
 def build_drive(mapping: Mapping, raws: Sequence[RawChannel], name: str, params: dict[str, Any],
-                missing_as_gaps: bool = False) -> Drive:
+                missing_as_gaps: bool = True) -> Drive:
     """The drive from what an importer read through ``mapping``.
 
     Rows that repeat an earlier row of their channel exactly are dropped;
@@ -943,10 +943,10 @@ def build_drive(mapping: Mapping, raws: Sequence[RawChannel], name: str, params:
     params : dict
         Provenance; ``import_notes`` is added where rows were dropped or reordered, or repeat a time.
     missing_as_gaps : bool
-        A row without a value (NaN, an empty cell) for a required input
-        other than the time is a gap in that sensor: dropped, and counted in
-        a note (README: non-finite samples are gaps), as a CSV logger leaves
-        a cell empty. False: refused, as a message of a live feed is
+        True (recordings: CSV logs, bags): a row without a value (NaN, an
+        empty cell) for a required input other than the time is a gap in
+        that sensor, dropped and counted in a note (README: non-finite
+        samples are gaps). False: refused, as a message of a live feed is
         (:mod:`graphpos.live.rosbridge`, which takes it for malformed).
 
     Raises

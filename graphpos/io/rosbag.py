@@ -392,5 +392,4 @@ def import_rosbag(bag: str | os.PathLike, mapping: str | os.PathLike) -> Drive:
         raise FileFormatError(f"{bag}: not a readable ROS bag ({' '.join(str(exc).split())})") from None
     params = {"source": "rosbag", "file": Path(bag).name, "mapping": loaded.path.name,
               "topics": {plan.cm.channel: plan.cm.source for plan in plans}}
-    # a message without a required value (NaN) is a gap in that sensor, dropped and counted, as a CSV log's empty cell
-    return build_drive(loaded, [plan.raw() for plan in plans], name=path.stem or path.name, params=params, missing_as_gaps=True)
+    return build_drive(loaded, [plan.raw() for plan in plans], name=path.stem or path.name, params=params)

@@ -321,7 +321,7 @@ class RosbridgeTranslator:
                     raise MalformedMessage("id", str(raw.error(row, name, f"{word} id {int(ids[row])} is not in the "
                                                                           f"{word} map")))
         try:
-            drive = build_drive(self._mapping, [raw], name="live", params={})
+            drive = build_drive(self._mapping, [raw], name="live", params={}, missing_as_gaps=False)
         except FileFormatError as exc:
             raise MalformedMessage("field", str(exc)) from None
         return list(drive.measurements([reading.cm.channel]))

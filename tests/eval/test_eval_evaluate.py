@@ -167,7 +167,7 @@ def test_a_bound_with_default_noise_levels_is_called_a_reference():
     assert drive_bound(drive).is_limit
     imported = drive.replace(params={})
     bound = drive_bound(imported)
-    assert bound.ok and not bound.is_limit and bound.bound.diagnostics["noise_levels"] == "graph-batch's defaults"
+    assert bound.ok and not bound.is_limit and bound.bound.diagnostics["noise_levels_known"] is False
 
 
 def test_rfid_only_rows_say_their_bound_is_of_more_sensors():
