@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -66,13 +67,15 @@ def _table1(args: argparse.Namespace) -> int:
     if seed < 0:
         raise ConfigError(f"--seed must be non-negative, got {seed}")
     if args.plot is not None:
-        check_output_file(args.plot)
+        check_output_file(args.plot, kind="png")
     figures = table1(seed)
     print(json.dumps(figures, indent=1) if args.json else format_table1(figures, seed))
     if args.plot is not None:
         from graphpos.ranging.figures import plot_calibration
 
         plot_calibration(seed, args.plot)
+        # with --json, stdout is the JSON document alone
+        print(f"wrote {one_line(str(args.plot))}", file=sys.stderr if args.json else sys.stdout)
     return 0
 
 

@@ -121,7 +121,7 @@ def check_output_file(path: str | os.PathLike, inputs: Mapping[str, str | os.Pat
         args.drive}``; None: an optional input not given). ``path`` must be
         none of the input files (the same file by ``os.path.samefile`` or by
         resolved path) and not inside an input folder.
-    kind : {"mcap", "json"}, optional
+    kind : {"mcap", "json", "png"}, optional
         What the command writes (:data:`OUTPUT_KINDS`): an existing file at
         ``path`` is replaced only when it is empty or of this kind. None: any
         regular file is replaced (the files inside an output folder).
@@ -194,11 +194,21 @@ def _holds_json_object(stream: BinaryIO, size_bytes: int) -> bool:
         return False
 
 
+#: The eight bytes every PNG file begins with.
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+def _holds_png(stream: BinaryIO, size_bytes: int) -> bool:
+    """Whether the file begins with the PNG signature."""
+    return stream.read(len(PNG_MAGIC)) == PNG_MAGIC
+
+
 #: What a single-file command writes (``kind`` of :func:`check_output_file`): the words naming it, and the
 #: test that an existing file (open, and its size in bytes) holds it.
 OUTPUT_KINDS: dict[str, tuple[str, Callable[[BinaryIO, int], bool]]] = {
     "mcap": ("an MCAP drive", _holds_mcap),
     "json": ("a JSON object", _holds_json_object),
+    "png": ("a PNG image", _holds_png),
 }
 
 

@@ -1,11 +1,12 @@
 """A single output file never overwrites what the user did not mean to lose.
 
-``simulate``, ``import``, ``calibrate`` and ``ranging fit`` write one file.
+``simulate``, ``import``, ``calibrate``, ``ranging fit`` and ``ranging table1
+--plot`` write one file.
 Its path being one of the command's inputs (the drive, the config or
 mapping file, a file inside the imported folder; also through a hard or
 symbolic link) is refused before any work: one line naming the path, status
 2, the input unchanged byte for byte. An existing file that is not what the
-command writes (an MCAP drive; a JSON object) is refused the same way. The
+command writes (an MCAP drive; a JSON object; a PNG image) is refused the same way. The
 command's own previous output, an empty file and (for a drive) another MCAP
 drive are replaced.
 """
@@ -22,7 +23,7 @@ from test_cli_drives import assert_one_line_error, run
 
 from graphpos.errors import FileFormatError
 from graphpos.io import read_drive, write_drive
-from graphpos.io.outputs import check_output_file
+from graphpos.io.outputs import PNG_MAGIC, check_output_file
 from graphpos.sim import simulate
 
 #: A numpy warning would be a second line on the user's stderr.
@@ -34,10 +35,11 @@ COMMANDS = {
     "import-csv": ["import", "csv", "{logs}", "--mapping", "{mapping}", "-o", "{out}"],
     "calibrate": ["calibrate", "{drive}", "-o", "{out}"],
     "ranging-fit": ["ranging", "fit", "{drive}", "--truth", "-o", "{out}"],
+    "ranging-table1": ["ranging", "table1", "--plot", "{out}"],
 }
 #: What each command writes, as the refusal of a foreign file names it.
 WRITES = {"simulate": "an MCAP drive", "import-csv": "an MCAP drive", "calibrate": "a JSON object",
-          "ranging-fit": "a JSON object"}
+          "ranging-fit": "a JSON object", "ranging-table1": "a PNG image"}
 #: Each command's inputs given as its output: (command, the input's key in the sources, the refusal's words).
 OWN_INPUTS = [("simulate", "config", "is the command's input config file"),
               ("import-csv", "mapping", "is the command's input mapping file"),
@@ -137,6 +139,8 @@ def test_own_previous_output_and_an_empty_file_are_replaced(capsys, tmp_path, so
         assert f"wrote {out}" in stdout
     if WRITES[command] == "an MCAP drive":
         assert len(read_drive(out).truth) > 0
+    elif WRITES[command] == "a PNG image":
+        assert out.read_bytes().startswith(PNG_MAGIC)
     else:
         assert isinstance(json.loads(out.read_text()), dict)
 
