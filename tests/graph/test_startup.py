@@ -488,6 +488,26 @@ def test_graph_batch_solves_a_track_ignition_never_starts(monkeypatch):
     assert len(online.t_s) == 0 and online.diagnostics["not_started"]
 
 
+def test_graph_batch_starts_a_long_track_from_a_piece_of_it(monkeypatch):
+    """A held track longer than one piece (GRAPH_START_MAX_TRACK_S, here 12 s of a 30 s drive) is solved piece by
+    piece from its end: the last piece (no range in it) cannot start it, the one before does, and the whole
+    track comes out, close to the truth."""
+    from eval.metrics import evaluate_estimate
+    from graphpos.graph import builder
+
+    _never_igniting(monkeypatch)
+    monkeypatch.setattr(builder, "GRAPH_START_MAX_TRACK_S", 12.0)
+    drive = synthetic_drive(30.0, seed=1, turn_radps=0.1, compass=False)
+    rfid = drive.channels["rfid"]
+    drive = drive.replace(channels={**drive.channels, "rfid": rfid.select(rfid.t_s < 17.0)})
+    batch = _planar("graph-batch").run(drive.without_truth())
+    assert batch.diagnostics["start"]["source"] == "graph"
+    assert [p["result"] for p in batch.diagnostics["graph_start"]] == ["started"]
+    assert 5.0 < batch.diagnostics["graph_start"][0]["t_s"] < 7.0  # the piece 6-18 s: 18-30 s has no range
+    assert len(batch.t_s) > 250 and batch.t_s[0] < 1.0
+    assert evaluate_estimate(drive, batch)["windows"]["whole"]["position"]["rms_m"] < 0.3
+
+
 def test_graph_batch_leaves_an_ambiguous_track_unstarted(monkeypatch):
     """One beacon ranged from a straight track: mirrored tracks on either side of the beacon fit the ranges alike,
     so the graph's own solve refuses a start rather than give one of them (no output, the not-started diagnostic)."""
