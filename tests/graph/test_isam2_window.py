@@ -77,6 +77,29 @@ def test_learning_rebuilds_the_ranges_left_in_the_window():
     assert _gap_m(windowed, whole) < 0.3
 
 
+def test_ranges_rebuilt_in_chunks_are_each_swapped_once(monkeypatch):
+    """A learning swaps the window's range factors a few per iSAM2 update (here 7): afterwards the iSAM2 holds
+    exactly one range factor per range record it has keys for, and the causal output is that of one swap."""
+    import collections
+
+    from graphpos.graph import estimators
+
+    drive = synthetic_drive(70, seed=3, turn_radps=0.05, range_scale=1.05).without_truth()
+    config = GraphConfig(isam2_window_s=WINDOW_S, output_covariance=False)
+    _, at_once = _run_online(drive, config)
+    monkeypatch.setattr(estimators, "REBUILD_CHUNK_FACTORS", 7)
+    est, chunked = _run_online(drive, config)
+    assert max(entry["ranges_rebuilt"] for entry in chunked.diagnostics["online_calibration"]) > 7
+    isam = est.smoother.isam
+    factors, theta = isam.getFactorsUnsafe(), isam.getLinearizationPoint()
+    held = collections.Counter(tuple(factors.at(i).keys()) for i in range(factors.size())
+                               if factors.exists(i) and isinstance(factors.at(i), (gtsam.RangeFactor2D, gtsam.RangeFactor3D)))
+    records = collections.Counter((est.model.pose_key(r.keyframe), r.landmark_key) for r in est.builder.range_records
+                                  if theta.exists(est.model.pose_key(r.keyframe)) and theta.exists(r.landmark_key))
+    assert held == records and sum(held.values()) > 0
+    assert _gap_m(chunked, at_once) < 0.05
+
+
 def test_the_window_bookkeeping_matches_the_isam2_when_keys_are_stamped_again():
     """The keys the window expects to hold are exactly those in its iSAM2, update after update, when a
     landmark is stamped again at every update (it must stay) and keyframes leave in batches."""
