@@ -464,7 +464,7 @@ class GraphIsam2(_GraphEstimator):
         Left as they were built, the ranges received before a learning keep
         the old scale and pull the causal estimate for as long as they are
         near. The range records hold each reading, so iSAM2 removes the old
-        factors and takes the rebuilt ones in one update. Ranges of
+        factors and takes the rebuilt ones in the same updates. Ranges of
         marginalised keyframes are part of the window's prior and stay.
         The swap is made :data:`REBUILD_CHUNK_FACTORS` factors per update:
         one iSAM2 update (QR) that swapped them all took time growing much
