@@ -446,6 +446,49 @@ def turn_redundancy(builder, values: gtsam.Values, w: dict[str, np.ndarray], sca
     return redundancy
 
 
+def _turn_correction_fit(w: dict[str, np.ndarray], with_scale: bool, longest_span: bool = True) -> tuple[float, float]:
+    """``measured = yaw_rate_scale * solved + gyro_bias * T`` (Huber) over the longest spans the windows allow.
+
+    The windows ``w`` (:func:`_windows`) are summed into sliding spans of
+    consecutive ones, as long as :data:`NOISE_FIT_MAX_HORIZON_S` and still
+    :data:`NOISE_FIT_MIN_WINDOWS` of them end to end (the noise fit's
+    horizons). Why not the 2-s windows: the solved heading follows the
+    odometry through a turn and the compass or the ranges pull it back over
+    the seconds after, so a short window shows only part of the turn-rate
+    error and the fit is drawn towards no correction. On 300-s
+    realistic-profile drives (yaw rates up to 29 % off) the 2-s windows found
+    1.108 for 1.291 and 1.101 for 1.282; the spans (32 s there) find
+    1.255 and 1.248, every one of 12 seeds within 3 % (``python
+    benchmarks/realistic_drives.py --seeds 0-11``). Without ``with_scale``
+    (too little turning) only the bias.
+
+    ``longest_span`` False: the 2-s windows' fit, about which
+    :func:`fit_profile` measures the noise levels. Measured about the spans'
+    correction, fitted to the very minute-long spans the noise fit reads its
+    longest horizons from, they came out smaller (MRCLAM6 robot 1's heading
+    noise 0.027 to 0.016 rad/sqrt(s)) and too small for another stretch of
+    the drive: a profile from each MRCLAM6 drive's first half, on 150-s
+    pieces of its second half, gave graph-isam2 0.242 m and median ANEES
+    2.77 against 0.217 m and 2.17 before; with the noise about the windows'
+    fit, 0.222 m and 1.91 (``python benchmarks/real_drives.py -e
+    graph-isam2 --mrclam-only --halves 150``).
+    """
+    span = max(int(NOISE_FIT_MAX_HORIZON_S / CALIBRATION_WINDOW_S), 1) if longest_span else 1
+    while span > 1 and w["T"].size // span < NOISE_FIT_MIN_WINDOWS:
+        span //= 2
+
+    def spans(a: np.ndarray) -> np.ndarray:
+        c = np.concatenate(([0.0], np.cumsum(a)))
+        return c[span:] - c[:-span]
+
+    T, solved, measured = spans(w["T"]), spans(w["turn_s"]), spans(w["turn_m"])
+    if with_scale:
+        (scale, bias), _ = _huber_lstsq(np.column_stack([solved, T]), measured)
+        return float(scale), float(bias)
+    (bias,), _ = _huber_lstsq(T[:, None], measured - solved)
+    return 1.0, float(bias)
+
+
 def _lag1_correlation(residual: np.ndarray, keys: np.ndarray) -> float:
     """Correlation of consecutive range residuals of the same sighting (landmark key), clipped to [0, 0.9].
 
@@ -477,7 +520,8 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
     over :data:`CALIBRATION_WINDOW_S` windows:
 
     - turn: ``measured = yaw_rate_scale * solved + gyro_bias * T`` by Huber
-      regression (the scale only when the drive turns
+      regression over spans of windows up to a minute long
+      (:func:`_turn_correction_fit`; the scale only when the drive turns
       :data:`MIN_TURN_FOR_SCALE_RAD` in all, else 1);
     - wheel: the builder's fit of the wheel deltas
       (:meth:`GraphBuilder.fit_wheel_scale`);
@@ -511,11 +555,7 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
         return None  # too little data, or a vehicle that has not moved: nothing to calibrate on
     T = w["T"]
     turned = float(np.abs(w["turn_s"]).sum())
-    if turned >= MIN_TURN_FOR_SCALE_RAD:
-        (scale, bias), _ = _huber_lstsq(np.column_stack([w["turn_s"], T]), w["turn_m"])
-    else:
-        (bias,), _ = _huber_lstsq(T[:, None], w["turn_m"] - w["turn_s"])
-        scale = 1.0
+    scale, bias = _turn_correction_fit(w, turned >= MIN_TURN_FOR_SCALE_RAD)
     scale = float(np.clip(scale, *YAW_RATE_SCALE_BOUNDS))
     bias = float(np.clip(bias, -GYRO_BIAS_BOUND_RADPS, GYRO_BIAS_BOUND_RADPS))
     shares = None
@@ -524,7 +564,11 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
             shares = turn_redundancy(builder, values, w, scale)
         except RuntimeError:
             shares = None  # not factorisable: the plain fit
-    heading_var, turn_var, dof = _noise_fit((w["turn_m"] - bias * T) / scale - w["turn_s"], T, w["turn_s"], shares)
+    # the noise about the windows' correction (see _turn_correction_fit)
+    window_scale, window_bias = _turn_correction_fit(w, turned >= MIN_TURN_FOR_SCALE_RAD, longest_span=False)
+    window_scale = float(np.clip(window_scale, *YAW_RATE_SCALE_BOUNDS))
+    window_bias = float(np.clip(window_bias, -GYRO_BIAS_BOUND_RADPS, GYRO_BIAS_BOUND_RADPS))
+    heading_var, turn_var, dof = _noise_fit((w["turn_m"] - window_bias * T) / window_scale - w["turn_s"], T, w["turn_s"], shares)
     wheel_scale = 1.0
     if builder.odometry.has_speed:
         lo, hi = config.wheel_scale_bounds

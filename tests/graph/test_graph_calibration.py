@@ -379,6 +379,34 @@ def test_noise_fit_sees_an_error_that_persists():
     assert np.sqrt(multi) > 2.0 * np.sqrt(short)
 
 
+
+def test_turn_scale_fit_sees_the_turn_a_solve_followed_the_gyro_through():
+    """A solved heading that follows a gyro reading 25 % high through each U-turn and is pulled back after
+    (time constant 3 s, as a compass does: 14 degrees off at the turn's end, as graph-batch's first solve
+    on a realistic-profile drive): its 2-s windows keep much of the turn the gyro claimed, and a fit to
+    them finds a scale under 1.2; the fit over spans up to a minute finds 1.25."""
+    from graphpos.graph.calibration import _huber_lstsq, _turn_correction_fit
+
+    dt, scale, bias = 0.1, 1.25, 0.002
+    t = np.arange(0.0, 600.0, dt)
+    true_rate = np.where((t % 100.0) < 10.0, np.pi / 10.0, 0.0)  # a U-turn every 100 s
+    measured_rate = scale * true_rate + bias
+    error = np.zeros(t.size)  # the solved heading's error: the gyro's, decaying towards zero
+    for i in range(1, t.size):
+        error[i] = error[i - 1] * np.exp(-dt / 3.0) + (measured_rate[i] - true_rate[i]) * dt
+    solved_heading = np.cumsum(true_rate) * dt + error  # after each step
+    per = int(round(2.0 / dt))
+    n = t.size // per - 1
+    turn_m = measured_rate[1: n * per + 1].reshape(n, per).sum(1) * dt
+    turn_s = np.diff(solved_heading[: n * per + 1: per])
+    w = {"T": np.full(n, 2.0), "turn_m": turn_m, "turn_s": turn_s}
+    (windows_scale, _), _ = _huber_lstsq(np.column_stack([turn_s, w["T"]]), turn_m)
+    assert windows_scale < 1.2
+    found_scale, found_bias = _turn_correction_fit(w, with_scale=True)
+    assert found_scale == pytest.approx(scale, abs=0.02)
+    assert found_bias == pytest.approx(bias, abs=0.001)
+
+
 def _offset_drive(c0_m: float, seed: int):
     """A turning drive whose ranges read ``c0_m`` long and reach only the tags ahead (within +-0.5 rad, a camera's view)."""
     d = synthetic_drive(60, seed=seed, turn_radps=0.08)
