@@ -460,7 +460,8 @@ def _turn_correction_fit(w: dict[str, np.ndarray], with_scale: bool, longest_spa
     1.108 for 1.291 and 1.101 for 1.282; the spans (32 s there) find
     1.255 and 1.248, every one of 12 seeds within 3 % (``python
     benchmarks/realistic_drives.py --seeds 0-11``). Without ``with_scale``
-    (too little turning) only the bias.
+    (too little turning) only the bias. Both are clamped to
+    :data:`YAW_RATE_SCALE_BOUNDS` and :data:`GYRO_BIAS_BOUND_RADPS`.
 
     ``longest_span`` False: the 2-s windows' fit, about which
     :func:`fit_profile` measures the noise levels. Measured about the spans'
@@ -484,9 +485,10 @@ def _turn_correction_fit(w: dict[str, np.ndarray], with_scale: bool, longest_spa
     T, solved, measured = spans(w["T"]), spans(w["turn_s"]), spans(w["turn_m"])
     if with_scale:
         (scale, bias), _ = _huber_lstsq(np.column_stack([solved, T]), measured)
-        return float(scale), float(bias)
-    (bias,), _ = _huber_lstsq(T[:, None], measured - solved)
-    return 1.0, float(bias)
+    else:
+        (bias,), _ = _huber_lstsq(T[:, None], measured - solved)
+        scale = 1.0
+    return float(np.clip(scale, *YAW_RATE_SCALE_BOUNDS)), float(np.clip(bias, -GYRO_BIAS_BOUND_RADPS, GYRO_BIAS_BOUND_RADPS))
 
 
 def _lag1_correlation(residual: np.ndarray, keys: np.ndarray) -> float:
@@ -556,8 +558,6 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
     T = w["T"]
     turned = float(np.abs(w["turn_s"]).sum())
     scale, bias = _turn_correction_fit(w, turned >= MIN_TURN_FOR_SCALE_RAD)
-    scale = float(np.clip(scale, *YAW_RATE_SCALE_BOUNDS))
-    bias = float(np.clip(bias, -GYRO_BIAS_BOUND_RADPS, GYRO_BIAS_BOUND_RADPS))
     shares = None
     if redundancy:
         try:
@@ -566,8 +566,6 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
             shares = None  # not factorisable: the plain fit
     # the noise about the windows' correction (see _turn_correction_fit)
     window_scale, window_bias = _turn_correction_fit(w, turned >= MIN_TURN_FOR_SCALE_RAD, longest_span=False)
-    window_scale = float(np.clip(window_scale, *YAW_RATE_SCALE_BOUNDS))
-    window_bias = float(np.clip(window_bias, -GYRO_BIAS_BOUND_RADPS, GYRO_BIAS_BOUND_RADPS))
     heading_var, turn_var, dof = _noise_fit((w["turn_m"] - window_bias * T) / window_scale - w["turn_s"], T, w["turn_s"], shares)
     wheel_scale = 1.0
     if builder.odometry.has_speed:
