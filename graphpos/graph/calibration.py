@@ -471,7 +471,7 @@ def _turn_correction_fit(w: dict[str, np.ndarray], with_scale: bool, longest_spa
     the drive: a profile from each MRCLAM6 drive's first half, on 150-s
     pieces of its second half, gave graph-isam2 0.242 m and median ANEES
     2.77 against 0.217 m and 2.17 before; with the noise about the windows'
-    fit, 0.222 m and 1.91 (``python benchmarks/real_drives.py -e
+    fit, 0.219 m and 1.90 (``python benchmarks/real_drives.py -e
     graph-isam2 --mrclam-only --halves 150``).
     """
     span = max(int(NOISE_FIT_MAX_HORIZON_S / CALIBRATION_WINDOW_S), 1) if longest_span else 1
@@ -558,14 +558,14 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
     T = w["T"]
     turned = float(np.abs(w["turn_s"]).sum())
     scale, bias = _turn_correction_fit(w, turned >= MIN_TURN_FOR_SCALE_RAD)
+    # the noise about the windows' correction (see _turn_correction_fit), each residual's share by that correction
+    window_scale, window_bias = _turn_correction_fit(w, turned >= MIN_TURN_FOR_SCALE_RAD, longest_span=False)
     shares = None
     if redundancy:
         try:
-            shares = turn_redundancy(builder, values, w, scale)
+            shares = turn_redundancy(builder, values, w, window_scale)
         except RuntimeError:
             shares = None  # not factorisable: the plain fit
-    # the noise about the windows' correction (see _turn_correction_fit)
-    window_scale, window_bias = _turn_correction_fit(w, turned >= MIN_TURN_FOR_SCALE_RAD, longest_span=False)
     heading_var, turn_var, dof = _noise_fit((w["turn_m"] - window_bias * T) / window_scale - w["turn_s"], T, w["turn_s"], shares)
     wheel_scale = 1.0
     if builder.odometry.has_speed:

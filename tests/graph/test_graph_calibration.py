@@ -379,7 +379,6 @@ def test_noise_fit_sees_an_error_that_persists():
     assert np.sqrt(multi) > 2.0 * np.sqrt(short)
 
 
-
 def test_turn_scale_fit_sees_the_turn_a_solve_followed_the_gyro_through():
     """A solved heading that follows a gyro reading 25 % high through each U-turn and is pulled back after
     (time constant 3 s, as a compass does: 14 degrees off at the turn's end, as graph-batch's first solve
