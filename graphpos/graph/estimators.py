@@ -784,7 +784,7 @@ class GraphBatch(_GraphEstimator):
             self._pending = None
 
     def finish(self) -> Estimate:
-        from graphpos.graph.calibration import estimate_range_delay, estimate_range_offset, estimate_range_scale
+        from graphpos.graph.calibration import estimate_range_delay, estimate_range_offset, estimate_range_scale, estimate_wheel_scale
 
         self._apply(self.builder.flush())
         self._flush_pending()
@@ -818,20 +818,28 @@ class GraphBatch(_GraphEstimator):
                 self.builder.reweight_ranges(initial)
         if fit_wheel:
             self.builder.wheel_drift_density = self.config.wheel_scale_density_per_sqrt_s * self.config.batch_wheel_drift_factor
-            # only the wheel scale is taken from this solve: a 0.1 % tolerance
-            # fits it as well as 0.01 % (12 seeds: RMS 0.372 / 0.309 m against
-            # 0.370 / 0.306) in 4 iterations instead of 6 on a 10-minute drive
+            # a solve whose wheel factors allow for a scale error (their drift term) follows the ranges, not the
+            # wheel: the scale fitted to it is where the search for the scale starts (estimate_wheel_scale), whose
+            # factors then keep only their white noise. A 0.1 % tolerance fits it as well as 0.01 % (12 seeds:
+            # RMS 0.372 / 0.309 m against 0.370 / 0.306) in 4 iterations instead of 6 on a 10-minute drive
             initial = optimise(self.builder.graph(), initial, self.config, what, relative_tol=1e-3)
             self.builder.reweight_ranges(initial)
-            self._fit_wheel_scale(initial)
         offset = None
         search_offset = self.config.range_offset == "estimate" or (self.config.range_offset == "auto" and self.profile is not None)
         if search_offset and self.builder.range_records and self.builder.reports_ranges:
+            # before the wheel scale: ranges to the landmarks ahead that read long are matched by a track moved
+            # forward, and a wheel scale searched with them uncorrected took up part of the offset (a 0.3 m offset was
+            # found as 0.23 m, ANEES 3.7); the drift-tolerant wheel leaves the offset to the turns
             offset = estimate_range_offset(self.builder, initial, self.config, what)
             self.builder.range_offset_m = offset.offset_m
             self.builder.diagnostics.update(range_offset_m=offset.offset_m, range_offset_sigma_m=offset.sigma_m)
+            initial = offset.values
+        if fit_wheel:
+            _, initial = estimate_wheel_scale(self.builder, initial, self.config, what)
+            self.builder.diagnostics["wheel_scale"] = self.builder.wheel_scale
         graph = self.builder.graph()
-        values = offset.values if offset is not None else optimise(graph, initial, self.config, what)
+        # each search returns the solution at what it found, with everything before it kept
+        values = initial if (offset is not None or fit_wheel) else optimise(graph, initial, self.config, what)
         self.values = values
         covs = None
         compass = self.builder.compass_bias_sigma_rad is not None and values.exists(COMPASS_BIAS_KEY)
@@ -849,22 +857,6 @@ class GraphBatch(_GraphEstimator):
             j = offset.position_per_m
             rows = [dataclasses.replace(row, cov_en_m2=row.cov_en_m2 + offset.sigma_m**2 * np.outer(j[k], j[k])) for k, row in enumerate(rows)]
         return self._estimate(rows)
-
-
-    def _fit_wheel_scale(self, values: gtsam.Values) -> None:
-        """Self-calibrate the wheel scale on a drift-tolerant batch solve.
-
-        Its wheel factors allow for a scale error (their drift term, at
-        ``batch_wheel_drift_factor`` times the online density), so the trajectory follows
-        the ranges, not the wheel's scale; the scale fitting the wheel deltas
-        to it corrects the readings, whose factors then keep only their white
-        noise in the final solve. Fitting on the causal pass instead (one
-        solve fewer) recovered a -2.6 % scale error as -1.4 % once the tag
-        ranges' sigmas were evaluated at the estimate's distance.
-        """
-        lo, hi = self.config.wheel_scale_bounds
-        self.builder.wheel_scale = min(max(self.builder.fit_wheel_scale(values), lo), hi)
-        self.builder.diagnostics["wheel_scale"] = self.builder.wheel_scale
 
 
 #: graph-isam2 applies a learnt compass bias beyond this many of its sigmas, found again by the next learning to as many.

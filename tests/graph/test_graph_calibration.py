@@ -108,6 +108,24 @@ def test_wheel_scale_recovered_on_simulated_drives():
     assert np.mean(rms_cal) < np.mean(rms_plain)
 
 
+def test_wheel_scale_weighs_only_what_the_ranges_see():
+    """The wheel scale is the one the ranges support, not an average over keyframes the wheel alone places.
+
+    A realistic drive (wheel reading 5.9 % short) through the tunnel and
+    back, turning outside the portals where no tag is in range: there the
+    solve follows the wheel whatever its scale. The scale fitted to the
+    solved wheel deltas found 0.978 (a third of the error); the solved
+    error's minimum is within 0.2 % of the simulated 0.941.
+    """
+    from graphpos.sim import simulate
+
+    drive = simulate("paper-straight", seed=0, profile="realistic", duration_s=90.0)
+    out = ESTIMATORS["graph-batch"](GraphConfig(output_covariance=False)).run(drive.without_truth())
+    true_scale = 1.0 + drive.params["realised"]["wheel_scale_error"]
+    assert true_scale < 0.95
+    assert out.diagnostics["profile"]["wheel_scale"] == pytest.approx(true_scale, abs=0.005)
+
+
 def _camera_drive(c0_m: float, c2_m_per_rad2: float, duration_s: float = 60.0):
     """A drive whose ranges read off by c0 + c2 b^2, b a bearing within +-0.5 rad (a camera's, as MRCLAM's)."""
     d = synthetic_drive(duration_s, seed=12, turn_radps=0.08)
