@@ -106,7 +106,7 @@ def estimate_wheel_scale(builder, initial: gtsam.Values, config: GraphConfig, wh
     in the scale (no range or fix to weigh it): on 150-s pieces of MRCLAM6,
     whose wheels read within 2 % of true, the minimum of so little data
     took the mean RMS from 0.318 to 0.335 m (one piece 0.66 to 0.98 m).
-    Sets ``builder.wheel_scale``; the values returned are solved at it.
+    Sets ``builder.wheel_scale`` (and its diagnostics); the values returned are solved at it.
     """
     lo, hi = config.wheel_scale_bounds
     fitted = round(min(max(builder.fit_wheel_scale(initial), lo), hi), 9)
@@ -122,7 +122,7 @@ def estimate_wheel_scale(builder, initial: gtsam.Values, config: GraphConfig, wh
         best = fitted
     values = at(best, initial)[1]  # held: the best solve's or the fit's
     builder.wheel_scale = best
-    builder.diagnostics["wheel_scale_solves"] = len(at.solved)
+    builder.diagnostics.update(wheel_scale=best, wheel_scale_solves=len(at.solved))
     return float(best), values
 
 

@@ -836,7 +836,6 @@ class GraphBatch(_GraphEstimator):
             initial = offset.values
         if fit_wheel:
             _, initial = estimate_wheel_scale(self.builder, initial, self.config, what)
-            self.builder.diagnostics["wheel_scale"] = self.builder.wheel_scale
         graph = self.builder.graph()
         # each search returns the solution at what it found, with everything before it kept
         values = initial if (offset is not None or fit_wheel) else optimise(graph, initial, self.config, what)
