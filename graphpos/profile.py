@@ -188,6 +188,8 @@ class SensorProfile:
             values["yaw_model_psd_rad2ps"] = h * h
         if turn is not None:
             values["turn_scale_density_per_sqrt_s"] = turn
+        if (h is not None or turn is not None) and self.source.get("noise_dof") is not None:
+            values["noise_dof"] = float(self.source["noise_dof"])
         if self.range_sigma_scale is not None:
             values["range_sigma_scale"] = max(self.range_sigma_scale, 1.0)
         names = {f.name for f in dataclasses.fields(config)}

@@ -251,6 +251,10 @@ class GraphBuilder:
         self._imu_t: float | None = None
         self._imu_samples: list[tuple[np.ndarray, np.ndarray, float, bool]] = []
         self._imu_bias: np.ndarray | None = None
+        defaults = GraphConfig()
+        self._imu_heading_var = defaults.heading_noise_radps_per_sqrt_s**2
+        self._imu_turn_scale_var = defaults.turn_scale_density_per_sqrt_s**2
+        self._set_imu_turn_noise(c.heading_noise_radps_per_sqrt_s, c.turn_scale_density_per_sqrt_s, c.noise_dof)
         self.last_keyframe = -1
         self.segments: list[Segment] = []
         self.tracking = False
@@ -649,9 +653,31 @@ class GraphBuilder:
             o.heading_var = corrections.heading_noise_radps_per_sqrt_s**2
         if corrections.turn_scale_density_per_sqrt_s is not None:
             o.turn_scale_var = corrections.turn_scale_density_per_sqrt_s**2
+        self._set_imu_turn_noise(corrections.heading_noise_radps_per_sqrt_s, corrections.turn_scale_density_per_sqrt_s,
+                                 corrections.source.get("noise_dof"))
 
     def _keyframe_alive(self, k: int) -> bool:
         return k in self.states
+
+    def _set_imu_turn_noise(self, heading_density: float | None, turn_scale_density: float | None, dof: float | None) -> None:
+        """The heading noise and turn-rate scale densities the IMU factors add to the gyro's (inertial graph), as the
+        planar odometry adds them to its turn; only from a noise fit that determined them (``GraphConfig.noise_dof``)."""
+        from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
+
+        if dof is not None and dof < MIN_NOISE_FIT_DOF:
+            return  # a guess: the gyro's own figure and the defaults stay
+        if heading_density is not None:
+            self._imu_heading_var = heading_density**2
+        if turn_scale_density is not None:
+            self._imu_turn_scale_var = turn_scale_density**2
+
+    def _imu_turn_noise_var(self) -> float:
+        """The open interval's yaw-rate variance density beyond the gyro's white noise (rad^2/s) at its mean squared
+        yaw rate (:meth:`InertialModel.preintegrate`; :class:`PlanarOdometry`'s ``heading_density`` and
+        ``turn_scale_density`` terms)."""
+        duration_s = sum(dt for _, _, dt, _ in self._imu_samples)
+        yaw_rate2 = sum(rate[2] ** 2 * dt for _, rate, dt, _ in self._imu_samples) / duration_s if duration_s > 0 else 0.0
+        return self._imu_heading_var + self._imu_turn_scale_var * yaw_rate2
 
     def _integrate_imu(self, t_s: float) -> None:
         """Hold the last IMU sample up to ``t_s``: one preintegration step of the open interval.
@@ -691,7 +717,7 @@ class GraphBuilder:
                 p = self.initial_pose
                 self._add(inc, self.model.prior_factors(k, state, p.position_sigma_m, p.yaw_sigma_rad))
         else:
-            pim = self.model.preintegrate(self._imu_samples, self._imu_bias) if self._preintegrating else None
+            pim = self.model.preintegrate(self._imu_samples, self._imu_bias, self._imu_turn_noise_var()) if self._preintegrating else None
             state = self.model.predict(self.states[k - 1], delta, pim)
             wheel, *others = self.model.odometry_factors(k, delta, pim)
             inc.factors.add(wheel)

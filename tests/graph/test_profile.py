@@ -201,15 +201,16 @@ def test_calibrate_then_run_with_the_profile(biased_drive, tmp_path, capsys):
 def test_a_drive_too_short_to_determine_the_noise_is_said_to_be(tmp_path, capsys):
     """graph-batch says when the drive does not determine its odometry's heading noise (fewer degrees of freedom
     than MIN_NOISE_FIT_DOF): 60 s straight on, the ranges show none of the heading's errors (dof 0); two minutes
-    with a turn show plenty (dof about 33). ``run``, ``calibrate`` and ``evaluate`` (and its report) say it; the
-    profile records the dof."""
+    with a turn show plenty (dof about 12; 33 when the calibration solve's IMU factors held the turn to the gyro's
+    white noise, not loosened as the planar odometry's). ``run``, ``calibrate`` and ``evaluate`` (and its report)
+    say it; the profile records the dof."""
     from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
 
     short = ESTIMATORS["graph-batch"]().run(synthetic_drive(60, compass=False).without_truth())
     assert short.diagnostics["profile"]["source"]["noise_dof"] < MIN_NOISE_FIT_DOF
     assert len(short.diagnostics["warnings"]) == 1 and "does not determine" in short.diagnostics["warnings"][0]
     longer = ESTIMATORS["graph-batch"]().run(synthetic_drive(120, compass=False, turn_radps=0.05).without_truth())
-    assert longer.diagnostics["profile"]["source"]["noise_dof"] > 10 * MIN_NOISE_FIT_DOF
+    assert longer.diagnostics["profile"]["source"]["noise_dof"] > 4 * MIN_NOISE_FIT_DOF
     assert "warnings" not in longer.diagnostics
 
     drive_file = tmp_path / "short.mcap"
