@@ -62,6 +62,7 @@ from gtsam.symbol_shorthand import L, R
 
 from filters.models.angles import wrap_angle
 from graphpos.drive import Channel, Drive, Measurement, RowRun
+from graphpos.graph.calibration import MIN_NOISE_FIT_DOF, MIN_TURN_FOR_SCALE_RAD
 from graphpos.graph.config import GraphConfig
 from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState, between_walls, rival_gap
 from graphpos.profile import SensorProfile
@@ -255,6 +256,9 @@ class GraphBuilder:
         self._imu_heading_var = defaults.heading_noise_radps_per_sqrt_s**2
         self._imu_turn_scale_var = defaults.turn_scale_density_per_sqrt_s**2
         self._set_imu_turn_noise(c.heading_noise_radps_per_sqrt_s, c.turn_scale_density_per_sqrt_s, c.noise_dof)
+        #: The least turn-rate scale density of the IMU factors while the yaw rate's scale is unknown (graph-isam2
+        #: learning online sets it; a learning that fits the scale clears it); None: the scale is known.
+        self.unknown_scale_turn_density: float | None = None
         self.last_keyframe = -1
         self.segments: list[Segment] = []
         self.tracking = False
@@ -653,7 +657,11 @@ class GraphBuilder:
             o.heading_var = corrections.heading_noise_radps_per_sqrt_s**2
         if corrections.turn_scale_density_per_sqrt_s is not None:
             o.turn_scale_var = corrections.turn_scale_density_per_sqrt_s**2
-        self._set_imu_turn_noise(corrections.heading_noise_radps_per_sqrt_s, corrections.turn_scale_density_per_sqrt_s,
+        # a learning that turned too little to fit the scale does not determine the turn-scale density either
+        turned = corrections.source.get("turned_rad", 0.0) >= MIN_TURN_FOR_SCALE_RAD
+        if turned:
+            self.unknown_scale_turn_density = None
+        self._set_imu_turn_noise(corrections.heading_noise_radps_per_sqrt_s, corrections.turn_scale_density_per_sqrt_s if turned else None,
                                  corrections.source.get("noise_dof"))
 
     def _keyframe_alive(self, k: int) -> bool:
@@ -662,8 +670,6 @@ class GraphBuilder:
     def _set_imu_turn_noise(self, heading_density: float | None, turn_scale_density: float | None, dof: float | None) -> None:
         """The heading noise and turn-rate scale densities the IMU factors add to the gyro's (inertial graph), as the
         planar odometry adds them to its turn; only from a noise fit that determined them (``GraphConfig.noise_dof``)."""
-        from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
-
         if dof is not None and dof < MIN_NOISE_FIT_DOF:
             return  # a guess: the gyro's own figure and the defaults stay
         if heading_density is not None:
@@ -677,7 +683,10 @@ class GraphBuilder:
         ``turn_scale_density`` terms)."""
         duration_s = sum(dt for _, _, dt, _ in self._imu_samples)
         yaw_rate2 = sum(rate[2] ** 2 * dt for _, rate, dt, _ in self._imu_samples) / duration_s if duration_s > 0 else 0.0
-        return self._imu_heading_var + self._imu_turn_scale_var * yaw_rate2
+        turn_scale_var = self._imu_turn_scale_var
+        if self.unknown_scale_turn_density is not None:
+            turn_scale_var = max(turn_scale_var, self.unknown_scale_turn_density**2)
+        return self._imu_heading_var + turn_scale_var * yaw_rate2
 
     def _integrate_imu(self, t_s: float) -> None:
         """Hold the last IMU sample up to ``t_s``: one preintegration step of the open interval.

@@ -341,7 +341,10 @@ class GraphIsam2(_GraphEstimator):
     so the next learning fits what is left (MRCLAM6 mean RMS 0.526 to
     0.431 m; robot 1 worse, 0.446 to 0.514 m); so does the compass bias
     (``compass_bias``, solved for in the learning solve and applied when
-    significant), correcting the recorded compass readings as well. Only data received so far is
+    significant), correcting the recorded compass readings as well. Until a
+    learning has fitted the yaw rate's scale, the inertial graph's IMU factors
+    take the turn-rate scale density of an uncalibrated yaw rate
+    (``config.uncalibrated_turn_scale_density_per_sqrt_s``). Only data received so far is
     used: the output stays causal. The doubling keeps the learning's cost a
     small multiple of one batch solve of the drive. graph-fixed-lag does not
     learn (it keeps no history); without learning the two give the same
@@ -366,6 +369,8 @@ class GraphIsam2(_GraphEstimator):
     def start(self, drive: Drive) -> None:
         super().start(drive)
         self._next_learn_s = None if (self.profile is not None or not self.config.learn_online) else LEARN_FIRST_S
+        if self._next_learn_s is not None:  # the yaw rate's scale is unknown until a learning fits it
+            self.builder.unknown_scale_turn_density = self.config.uncalibrated_turn_scale_density_per_sqrt_s
         self._learnt_k = 0
         self._learning: list[dict] = []
         self._compass_seen: tuple[float, float] | None = None  # the total compass bias the last learning found, and its sigma
