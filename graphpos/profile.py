@@ -220,6 +220,8 @@ class SensorProfile:
                 a, b = getattr(self, name), getattr(later, name)
                 if a is not None and b is not None:
                     noise[name] = math.sqrt((mine * a**2 + theirs * b**2) / (mine + theirs))
+                elif a is not None:  # the later fit did not determine it: this one's stands
+                    noise[name] = a
             noise["source"] = {**later.source, "windows": mine + theirs}
             if "noise_dof" in self.source and "noise_dof" in later.source:  # independent windows: their degrees of freedom add
                 noise["source"]["noise_dof"] = self.source["noise_dof"] + later.source["noise_dof"]

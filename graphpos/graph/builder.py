@@ -62,7 +62,7 @@ from gtsam.symbol_shorthand import L, R
 
 from filters.models.angles import wrap_angle
 from graphpos.drive import Channel, Drive, Measurement, RowRun
-from graphpos.graph.calibration import MIN_NOISE_FIT_DOF, MIN_TURN_FOR_SCALE_RAD
+from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
 from graphpos.graph.config import GraphConfig
 from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState, between_walls, rival_gap
 from graphpos.profile import SensorProfile
@@ -657,11 +657,9 @@ class GraphBuilder:
             o.heading_var = corrections.heading_noise_radps_per_sqrt_s**2
         if corrections.turn_scale_density_per_sqrt_s is not None:
             o.turn_scale_var = corrections.turn_scale_density_per_sqrt_s**2
-        # a learning that turned too little to fit the scale does not determine the turn-scale density either
-        turned = corrections.source.get("turned_rad", 0.0) >= MIN_TURN_FOR_SCALE_RAD
-        if turned:
+        if corrections.turn_scale_density_per_sqrt_s is not None:  # fitted with the scale (calibration.fit_profile)
             self.unknown_scale_turn_density = None
-        self._set_imu_turn_noise(corrections.heading_noise_radps_per_sqrt_s, corrections.turn_scale_density_per_sqrt_s if turned else None,
+        self._set_imu_turn_noise(corrections.heading_noise_radps_per_sqrt_s, corrections.turn_scale_density_per_sqrt_s,
                                  corrections.source.get("noise_dof"))
 
     def _keyframe_alive(self, k: int) -> bool:

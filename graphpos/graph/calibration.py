@@ -590,7 +590,10 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
       wheel below its 95 % band: ANEES 1.74 over 25 seeds, band 1.76-2.26);
     - noise: the corrected odometry's remaining turn errors,
       ``E[e^2] = a T + c (turn)^2 / T`` (:func:`_noise_fit`): the heading
-      random walk and the turn-rate scale density left; with ``redundancy``,
+      random walk and the turn-rate scale density left (the density only
+      when the drive turns :data:`MIN_TURN_FOR_SCALE_RAD`, as the scale,
+      else None: fitted on straight driving it came out anywhere from 0 to
+      14 /sqrt(s), and graph-isam2's learnings applied it); with ``redundancy``,
       each residual weighed by the share of the error it can show
       (:func:`turn_redundancy`: one factorisation of the solved graph). The wheel keeps its
       configured scale density: fitted the same way, it came out too small
@@ -638,7 +641,8 @@ def fit_profile(builder, values: gtsam.Values, config: GraphConfig, drive_name: 
         yaw_rate_scale=scale,
         wheel_scale=wheel_scale,
         heading_noise_radps_per_sqrt_s=max(math.sqrt(heading_var), gyro_density),
-        turn_scale_density_per_sqrt_s=math.sqrt(turn_var),
+        # a drive that turned too little for a scale does not determine its density either (None: left as it was)
+        turn_scale_density_per_sqrt_s=math.sqrt(turn_var) if turned >= MIN_TURN_FOR_SCALE_RAD else None,
     )
     fields.update(fit_range_terms(builder, values) or {})
     if builder.has_tag_ranges and not builder.reports_ranges:

@@ -517,8 +517,8 @@ def test_imu_factor_carries_the_turn_noise_of_the_profile():
 
 def test_imu_factor_takes_an_unknown_yaw_rate_scale_until_a_learning_fits_it():
     """graph-isam2 learning online: while the yaw rate's scale is unknown the IMU factors take at least the
-    uncalibrated turn-rate scale density; a learning that turned MIN_TURN_FOR_SCALE_RAD (and fitted the scale)
-    ends that and sets the density it fitted, one that turned less leaves the density as it was."""
+    uncalibrated turn-rate scale density; a learning that fitted the density (one that turned
+    MIN_TURN_FOR_SCALE_RAD: calibration.fit_profile) ends that and sets it, one that did not leaves it as it was."""
     from graphpos.graph.calibration import MIN_TURN_FOR_SCALE_RAD
     from graphpos.profile import SensorProfile
     from graphpos.sim import simulate
@@ -532,7 +532,7 @@ def test_imu_factor_takes_an_unknown_yaw_rate_scale_until_a_learning_fits_it():
     b._imu_samples = [(np.array([0.0, 0.0, 9.81]), np.array([0.0, 0.0, yaw_rate]), 0.01, True)] * 10
     heading2 = c.heading_noise_radps_per_sqrt_s**2
     assert b._imu_turn_noise_var() == pytest.approx(heading2 + (c.uncalibrated_turn_scale_density_per_sqrt_s * yaw_rate) ** 2)
-    straight = SensorProfile(turn_scale_density_per_sqrt_s=0.001, source={"windows": 10, "noise_dof": 10.0, "turned_rad": 0.1})
+    straight = SensorProfile(turn_scale_density_per_sqrt_s=None, source={"windows": 10, "noise_dof": 10.0, "turned_rad": 0.1})
     b.recalibrate(straight, 1.0, None)
     assert b.unknown_scale_turn_density == c.uncalibrated_turn_scale_density_per_sqrt_s
     assert b._imu_turn_noise_var() == pytest.approx(heading2 + (c.uncalibrated_turn_scale_density_per_sqrt_s * yaw_rate) ** 2)
@@ -550,7 +550,7 @@ def test_graph_isam2_heading_follows_the_compass_through_a_u_turn_with_the_yaw_r
     """A realistic drive whose yaw rate reads 29 % high turns outside the portal, with no tag in range, before any
     learning has seen a turn. With the IMU factors held to the gyro's white noise, graph-isam2's heading left the
     compass (good to 1 degree) by 58 degrees there and its redescending loss then ignored it (position error up to
-    18 m); with the default turn-rate scale density in them the compass holds the heading."""
+    18 m); with the heading noise and turn-rate scale density in them the compass holds the heading."""
     from graphpos.sim import simulate
 
     drive = simulate("paper-straight", seed=0, profile="realistic", duration_s=125.0)
