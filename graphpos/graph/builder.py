@@ -256,8 +256,8 @@ class GraphBuilder:
         self._imu_heading_var = defaults.heading_noise_radps_per_sqrt_s**2
         self._imu_turn_scale_var = defaults.turn_scale_density_per_sqrt_s**2
         self._set_imu_turn_noise(c.heading_noise_radps_per_sqrt_s, c.turn_scale_density_per_sqrt_s, c.noise_dof)
-        #: The least turn-rate scale density of the IMU factors while the yaw rate's scale is unknown (graph-isam2
-        #: learning online sets it; a learning that fits the scale clears it); None: the scale is known.
+        #: The least turn-rate scale density of the IMU factors while the yaw rate's scale is unknown (the estimator
+        #: sets it, ``widens_uncalibrated_turns``; a learning that fits the scale clears it); None: the scale is known.
         self.unknown_scale_turn_density: float | None = None
         self.last_keyframe = -1
         self.segments: list[Segment] = []

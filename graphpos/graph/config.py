@@ -81,11 +81,16 @@ class GraphConfig:
         scale is good to a per cent or two; graph-batch estimates the
         drive's own (:mod:`graphpos.graph.calibration`).
     uncalibrated_turn_scale_density_per_sqrt_s : float
-        graph-isam2 learning online, inertial graph: the least turn-rate
-        scale density of its IMU factors until a learning has fitted the
-        yaw rate's scale (a learning over
+        Inertial graph: the least turn-rate scale density of the IMU
+        factors while the yaw rate's scale is unknown: until graph-isam2's
+        online learning has fitted it (a learning over
         :data:`~graphpos.graph.calibration.MIN_TURN_FOR_SCALE_RAD` of
-        turning). A yaw rate whose scale is known to about 15 % (the error
+        turning), throughout where no sensor profile with a fitted scale is
+        given and nothing learns one (graph-fixed-lag; graph-isam2 with
+        ``learn_online`` off; graph-batch with ``self_calibrate`` off), not
+        in graph-batch's self-calibration
+        (:attr:`~graphpos.graph.estimators.GraphBatch.widens_uncalibrated_turns`).
+        A yaw rate whose scale is known to about 15 % (the error
         class real sensor sets show goes to 30 %) is off by 0.15 of each
         turn; over a turn of about 16 s that is a density of
         ``0.15 sqrt(16) = 0.6``. With the default 0.02 the heading followed
