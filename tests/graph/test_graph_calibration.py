@@ -518,7 +518,9 @@ def test_imu_factor_carries_the_turn_noise_of_the_profile():
 def test_imu_factor_takes_an_unknown_yaw_rate_scale_until_a_learning_fits_it():
     """graph-isam2 learning online: while the yaw rate's scale is unknown the IMU factors take at least the
     uncalibrated turn-rate scale density; a learning that fitted the density (one that turned
-    MIN_TURN_FOR_SCALE_RAD: calibration.fit_profile) ends that and sets it, one that did not leaves it as it was."""
+    MIN_TURN_FOR_SCALE_RAD: calibration.fit_profile) ends that and sets it, one that did not leaves it as it was.
+    A graph that learns nothing takes it throughout unless given a profile with a fitted scale; graph-batch's
+    self-calibration never does."""
     from graphpos.graph.calibration import MIN_TURN_FOR_SCALE_RAD
     from graphpos.profile import SensorProfile
     from graphpos.sim import simulate
@@ -548,6 +550,10 @@ def test_imu_factor_takes_an_unknown_yaw_rate_scale_until_a_learning_fits_it():
         other = ESTIMATORS[name](GraphConfig(output_covariance=False, **config), profile=profile)
         other.start(drive.without_truth())
         assert (other.builder.unknown_scale_turn_density is not None) == unknown, (name, config, profile)
+    # graph-batch's self-calibration: its final solve has the scale it fitted to this drive's turns
+    batch = ESTIMATORS["graph-batch"](GraphConfig(output_covariance=False))
+    assert "profile" in batch.run(drive.without_truth()).diagnostics
+    assert batch.builder.unknown_scale_turn_density is None
 
 
 @pytest.mark.parametrize("name", ["graph-isam2", "graph-fixed-lag"])
