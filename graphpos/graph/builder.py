@@ -257,7 +257,7 @@ class GraphBuilder:
         self._imu_turn_scale_var = defaults.turn_scale_density_per_sqrt_s**2
         self._set_imu_turn_noise(c.heading_noise_radps_per_sqrt_s, c.turn_scale_density_per_sqrt_s, c.noise_dof)
         #: The least turn-rate scale density of the IMU factors while the yaw rate's scale is unknown (the estimator
-        #: sets it, ``widens_uncalibrated_turns``; a learning that fits the scale clears it); None: the scale is known.
+        #: sets it, ``widens_uncalibrated_scales``; a learning that fits the scale clears it); None: the scale is known.
         self.unknown_scale_turn_density: float | None = None
         self.last_keyframe = -1
         self.segments: list[Segment] = []
@@ -661,6 +661,10 @@ class GraphBuilder:
             self.unknown_scale_turn_density = None
         self._set_imu_turn_noise(corrections.heading_noise_radps_per_sqrt_s, corrections.turn_scale_density_per_sqrt_s,
                                  corrections.source.get("noise_dof"))
+
+    def widen_unknown_wheel_scale(self, density_per_sqrt_s: float) -> None:
+        """Wheel factors built from now on take at least this wheel-scale density (a wheel whose scale is unknown)."""
+        self.odometry.scale_var = max(self.config.wheel_scale_density_per_sqrt_s, density_per_sqrt_s) ** 2
 
     def _keyframe_alive(self, k: int) -> bool:
         return k in self.states

@@ -89,7 +89,7 @@ class GraphConfig:
         given and nothing learns one (graph-fixed-lag; graph-isam2 with
         ``learn_online`` off; graph-batch with ``self_calibrate`` off), not
         in graph-batch's self-calibration
-        (:attr:`~graphpos.graph.estimators.GraphBatch.widens_uncalibrated_turns`).
+        (:attr:`~graphpos.graph.estimators.GraphBatch.widens_uncalibrated_scales`).
         A yaw rate whose scale is known to about 15 % (the error
         class real sensor sets show goes to 30 %) is off by 0.15 of each
         turn; over a turn of about 16 s that is a density of
@@ -103,6 +103,22 @@ class GraphConfig:
         there MRCLAM6's mean went from 0.392 to 0.510 m and Plaza1's from
         0.325 to 0.381 m (no compass, and ranges that see the heading
         poorly: the odometry's turns carry it).
+    uncalibrated_wheel_scale_density_per_sqrt_s : float
+        The least wheel-scale density of the wheel factors of a graph that
+        is given no sensor profile and learns none (graph-fixed-lag;
+        graph-isam2 with ``learn_online`` off; graph-batch with
+        ``self_calibrate`` off): the wheel's scale is unknown. A scale known
+        to about 5 % (the error class real sensor sets show goes to 10 %)
+        over about 16 s between tags: ``0.05 sqrt(16) = 0.2``; the default
+        0.12 allows about 3 %. graph-fixed-lag on realistic 300 s drives
+        (wheels up to 10 % off): mean RMS 0.645 to 0.471 m on seeds 0-3,
+        0.723 to 0.570 m on seeds 4-19 (0.4: 0.469 and 0.514 m), fresh
+        seeds 20-29 0.687 to 0.513 m; Plaza1 0.373 to 0.360 m; paper
+        profile (wheels 3.5-5.5 % off) 3.035 to 3.046 m; where the wheel is
+        exact it costs: ideal paper drives 0.385 to 0.429 m, MRCLAM6
+        (wheels within 1.2 %) 0.924 to 0.965 m. graph-isam2's first
+        learning fits the scale
+        (:attr:`~graphpos.graph.estimators.GraphIsam2.learns_online`).
     noise_dof : float or None
         Degrees of freedom of the noise fit behind ``heading_noise_radps_per_sqrt_s``
         and ``turn_scale_density_per_sqrt_s`` when a sensor profile set them
@@ -294,6 +310,7 @@ class GraphConfig:
     heading_noise_radps_per_sqrt_s: float = 1e-4
     turn_scale_density_per_sqrt_s: float = 0.02
     uncalibrated_turn_scale_density_per_sqrt_s: float = 0.6
+    uncalibrated_wheel_scale_density_per_sqrt_s: float = 0.2
     noise_dof: float | None = None
     batch_wheel_drift_factor: float = 2.0
     wheel_rate_hz: float | None = None

@@ -92,10 +92,19 @@ class _GraphEstimator(Estimator):
 
     #: Whether the inertial graph's IMU factors take the turn-rate scale density of an uncalibrated yaw rate
     #: (``config.uncalibrated_turn_scale_density_per_sqrt_s``) unless a sensor profile with a fitted scale is given
-    #: (graph-isam2's learning gives one online). Off in graph-batch's two solves of its self-calibration: the
-    #: first loosens its odometry by ``config.calibration_odometry_factor`` to fit the scale, the second has it
-    #: (:meth:`GraphBatch._final_solve`).
-    widens_uncalibrated_turns = True
+    #: (graph-isam2's learning gives one online), and the wheel factors that of an uncalibrated wheel
+    #: (``config.uncalibrated_wheel_scale_density_per_sqrt_s``) unless a sensor profile is given or the estimator
+    #: learns one online (:attr:`learns_online`). Off in
+    #: graph-batch's self-calibration: its first solve loosens its odometry to fit the scales
+    #: (``config.calibration_odometry_factor``, ``config.batch_wheel_drift_factor``), the second has them
+    #: (:meth:`GraphBatch._final_solve`), and a drive too short to calibrate on is solved as configured (widened,
+    #: a 15 s drive started by a user heading 180 degrees off stayed 8.3 m off in the inertial graph).
+    widens_uncalibrated_scales = True
+
+    @property
+    def learns_online(self) -> bool:
+        """Whether it fits a sensor profile to the data received so far, as it runs (graph-isam2's learning)."""
+        return False
 
     # -- online ---------------------------------------------------------------
     def start(self, drive: Drive) -> None:
@@ -113,9 +122,11 @@ class _GraphEstimator(Estimator):
             self.config.range_scale == "auto" and self.range_model is None and self.profile is None)
         self.builder = GraphBuilder(self.config, self.model, drive, range_models, initial_pose=self.start_pose(drive),
                                     scale_ranges_at_start=uncalibrated, **self._builder_options())
-        if self.widens_uncalibrated_turns and (self.profile is None or self.profile.turn_scale_density_per_sqrt_s is None):
+        if self.widens_uncalibrated_scales and (self.profile is None or self.profile.turn_scale_density_per_sqrt_s is None):
             # the yaw rate's scale is unknown until a fit over enough turning (graph-isam2's learning) finds it
             self.builder.unknown_scale_turn_density = self.config.uncalibrated_turn_scale_density_per_sqrt_s
+        if self.widens_uncalibrated_scales and self.profile is None and not self.learns_online:  # and the wheel's
+            self.builder.widen_unknown_wheel_scale(self.config.uncalibrated_wheel_scale_density_per_sqrt_s)
         self.smoother = self._make_smoother(self.model.name)
         self.rows: list[OutputRow] = []
         self.update_times_s: list[float] = []
@@ -376,9 +387,16 @@ class GraphIsam2(_GraphEstimator):
     checks_covariance = True
     summary = "GTSAM iSAM2 factor graph, one update per 10 Hz keyframe; causal output (final=True: smoothed)"
 
+    @property
+    def learns_online(self) -> bool:
+        """Without a sensor profile (``config.learn_online``). Its first learning fits the wheel's scale
+        :data:`LEARN_FIRST_S` in, so its wheel factors keep the configured density: widened until then, the
+        result was mixed (MRCLAM6's mean RMS 0.394 to 0.407 m, realistic seeds 4-19 0.222 to 0.215 m)."""
+        return self.config.learn_online and self.profile is None
+
     def start(self, drive: Drive) -> None:
         super().start(drive)
-        self._next_learn_s = None if (self.profile is not None or not self.config.learn_online) else LEARN_FIRST_S
+        self._next_learn_s = LEARN_FIRST_S if self.learns_online else None
         self._learnt_k = 0
         self._learning: list[dict] = []
         self._compass_seen: tuple[float, float] | None = None  # the total compass bias the last learning found, and its sigma
@@ -565,11 +583,12 @@ class GraphFixedLag(_GraphEstimator):
     it once a learnt profile is applied (on paper-straight seeds 0-3, from
     30 s on: 0.12-0.39 m at most, at the drive's end). Learning nothing, it
     takes the yaw rate's scale as unknown throughout unless a sensor
-    profile gives it (:attr:`widens_uncalibrated_turns`): on realistic
+    profile gives it (:attr:`widens_uncalibrated_scales`): on realistic
     300 s drives, where the scale is up to 30 % off, its mean RMS went from
     2.07 to 0.65 m on seeds 0-3 and from 3.36 to 0.72 m on seeds 4-19
     (fresh seeds 20-29: 0.69 m); on the ideal paper drives, whose gyro has
-    no scale error, from 0.378 to 0.385 m. The start differs too where ignition needs longer than
+    no scale error, from 0.378 to 0.385 m. So does the wheel's (0.47, 0.57
+    and 0.51 m; see ``config.uncalibrated_wheel_scale_density_per_sqrt_s``). The start differs too where ignition needs longer than
     the window: only the last ``fixed_lag_s - max_delay_s`` of the held
     track are released (:class:`~graphpos.graph.builder.GraphBuilder`).
     """
@@ -727,7 +746,7 @@ class GraphBatch(_GraphEstimator):
                                     turn_scale_density_per_sqrt_s=c.turn_scale_density_per_sqrt_s * c.calibration_odometry_factor)
         first = GraphBatch(loose, self.layout, self.range_model, self.initial_pose)
         first.counts_new_readings = False
-        first.widens_uncalibrated_turns = False
+        first.widens_uncalibrated_scales = False
         first_estimate = first.run(drive)
         if not first.builder.started or not first.builder.odometry_records:
             return first_estimate.with_wall_time(time.perf_counter() - t0)
@@ -737,6 +756,7 @@ class GraphBatch(_GraphEstimator):
         release_freed_memory()
         if profile is None:  # too short a drive, or no motion, to calibrate on: one plain solve
             plain = GraphBatch(dataclasses.replace(c, self_calibrate=False), self.layout, self.range_model, self.initial_pose)
+            plain.widens_uncalibrated_scales = False
             est = plain.run(drive)
             self.builder, self.model, self.values, self.config = plain.builder, plain.model, getattr(plain, "values", None), plain.config
             return est.with_wall_time(time.perf_counter() - t0)
@@ -777,7 +797,7 @@ class GraphBatch(_GraphEstimator):
         RMS on the paper profile's drives (paper-straight and paper-comprehensive, seeds 0-5), whose turns are
         too few to fit a scale, went from 1.041 to 1.109 m (ideal profile: 0.230 to 0.236 m)."""
         final = GraphBatch(config, self.layout, self.range_model, self.initial_pose, profile)
-        final.widens_uncalibrated_turns = False
+        final.widens_uncalibrated_scales = False
         return final, final.run(drive)
 
     def start(self, drive: Drive) -> None:

@@ -556,6 +556,30 @@ def test_imu_factor_takes_an_unknown_yaw_rate_scale_until_a_learning_fits_it():
     assert batch.builder.unknown_scale_turn_density is None
 
 
+def test_wheel_factors_take_an_unknown_wheel_scale_where_nothing_fits_it():
+    """A graph given no sensor profile that learns none takes the uncalibrated wheel-scale density; graph-isam2
+    learning online (its first learning fits the scale), a given profile and graph-batch's self-calibration keep
+    the configured one."""
+    from graphpos.profile import SensorProfile
+    from graphpos.sim import simulate
+
+    drive = simulate("paper-straight", seed=0, profile="realistic", duration_s=20.0).without_truth()
+    c = GraphConfig(output_covariance=False)
+    configured, widened = c.wheel_scale_density_per_sqrt_s**2, c.uncalibrated_wheel_scale_density_per_sqrt_s**2
+    assert widened > configured
+    fitted = SensorProfile(wheel_scale=1.03)
+    for name, config, profile, expected in [("graph-fixed-lag", {}, None, widened), ("graph-fixed-lag", {}, fitted, configured),
+                                            ("graph-isam2", {}, None, configured), ("graph-isam2", {"learn_online": False}, None, widened),
+                                            ("graph-isam2", {"learn_online": False}, fitted, configured),
+                                            ("graph-batch", {"self_calibrate": False}, None, widened)]:
+        est = ESTIMATORS[name](GraphConfig(output_covariance=False, **config), profile=profile)
+        est.start(drive)
+        assert est.builder.odometry.scale_var == pytest.approx(expected), (name, config, profile)
+    batch = ESTIMATORS["graph-batch"](c)
+    assert "profile" in batch.run(drive).diagnostics
+    assert batch.builder.odometry.scale_var == pytest.approx(configured)
+
+
 @pytest.mark.parametrize("name", ["graph-isam2", "graph-fixed-lag"])
 def test_online_graph_heading_follows_the_compass_through_a_u_turn_with_the_yaw_rate_off(name):
     """A realistic drive whose yaw rate reads 29 % high turns outside the portal, with no tag in range, before any
