@@ -655,9 +655,8 @@ class GraphBuilder:
         o = self.odometry
         if corrections.heading_noise_radps_per_sqrt_s is not None:
             o.heading_var = corrections.heading_noise_radps_per_sqrt_s**2
-        if corrections.turn_scale_density_per_sqrt_s is not None:
-            o.turn_scale_var = corrections.turn_scale_density_per_sqrt_s**2
         if corrections.turn_scale_density_per_sqrt_s is not None:  # fitted with the scale (calibration.fit_profile)
+            o.turn_scale_var = corrections.turn_scale_density_per_sqrt_s**2
             self.unknown_scale_turn_density = None
         self._set_imu_turn_noise(corrections.heading_noise_radps_per_sqrt_s, corrections.turn_scale_density_per_sqrt_s,
                                  corrections.source.get("noise_dof"))

@@ -94,11 +94,8 @@ class _GraphEstimator(Estimator):
     #: (``config.uncalibrated_turn_scale_density_per_sqrt_s``) unless a sensor profile with a fitted scale is given
     #: (graph-isam2's learning gives one online), and the wheel factors that of an uncalibrated wheel
     #: (``config.uncalibrated_wheel_scale_density_per_sqrt_s``) unless a sensor profile is given or the estimator
-    #: learns one online (:attr:`learns_online`). Off in
-    #: graph-batch's self-calibration: its first solve loosens its odometry to fit the scales
-    #: (``config.calibration_odometry_factor``, ``config.batch_wheel_drift_factor``), the second has them
-    #: (:meth:`GraphBatch._final_solve`), and a drive too short to calibrate on is solved as configured (widened,
-    #: a 15 s drive started by a user heading 180 degrees off stayed 8.3 m off in the inertial graph).
+    #: learns one online (:attr:`learns_online`). Off in the solves of graph-batch's self-calibration
+    #: (:meth:`GraphBatch._calibration_solve`).
     widens_uncalibrated_scales = True
 
     @property
@@ -744,9 +741,8 @@ class GraphBatch(_GraphEstimator):
         loose = dataclasses.replace(c, self_calibrate=False, output_covariance=False,
                                     heading_drift_sigma_radps=c.heading_drift_sigma_radps * c.calibration_odometry_factor,
                                     turn_scale_density_per_sqrt_s=c.turn_scale_density_per_sqrt_s * c.calibration_odometry_factor)
-        first = GraphBatch(loose, self.layout, self.range_model, self.initial_pose)
+        first = self._calibration_solve(loose)
         first.counts_new_readings = False
-        first.widens_uncalibrated_scales = False
         first_estimate = first.run(drive)
         if not first.builder.started or not first.builder.odometry_records:
             return first_estimate.with_wall_time(time.perf_counter() - t0)
@@ -755,8 +751,7 @@ class GraphBatch(_GraphEstimator):
         del first  # its graph and values go before the second solve builds its own
         release_freed_memory()
         if profile is None:  # too short a drive, or no motion, to calibrate on: one plain solve
-            plain = GraphBatch(dataclasses.replace(c, self_calibrate=False), self.layout, self.range_model, self.initial_pose)
-            plain.widens_uncalibrated_scales = False
+            plain = self._calibration_solve(dataclasses.replace(c, self_calibrate=False))
             est = plain.run(drive)
             self.builder, self.model, self.values, self.config = plain.builder, plain.model, getattr(plain, "values", None), plain.config
             return est.with_wall_time(time.perf_counter() - t0)
@@ -765,7 +760,8 @@ class GraphBatch(_GraphEstimator):
         delay = c.range_delay == "estimate" or (c.range_delay == "auto" and drive.has("wheel"))
         final_config = dataclasses.replace(c, self_calibrate=False, range_scale="off", wheel_scale="off",
                                            range_delay="estimate" if delay else "off")
-        final, est = self._final_solve(final_config, profile, drive)
+        final = self._calibration_solve(final_config, profile)
+        est = final.run(drive)
         profile = _with_found_terms(profile, est)
         refit = fit_range_terms(final.builder, final.values) if bearing else None
         if refit is not None and refit["range_bearing2_m_per_rad2"] != 0.0:
@@ -779,7 +775,8 @@ class GraphBatch(_GraphEstimator):
                 range_sigma0_m=max(profile.range_sigma0_m, refit["range_sigma0_m"]))
             del final
             release_freed_memory()
-            final, est = self._final_solve(final_config, profile, drive)
+            final = self._calibration_solve(final_config, profile)
+            est = final.run(drive)
             profile = _with_found_terms(profile, est)
         self.builder, self.model, self.values, self.config = final.builder, final.model, getattr(final, "values", None), final.config
         diagnostics = {**est.diagnostics, "profile": profile.to_dict(), "range_scale": profile.range_scale, "wheel_scale": profile.wheel_scale,
@@ -790,15 +787,17 @@ class GraphBatch(_GraphEstimator):
             diagnostics["warnings"] = [*diagnostics.get("warnings", []), warning]
         return dataclasses.replace(est, diagnostics=diagnostics, wall_time_s=time.perf_counter() - t0)
 
-    def _final_solve(self, config: GraphConfig, profile, drive: Drive) -> tuple[GraphBatch, Estimate]:
-        """A solve of the drive with the profile its calibration solve found. Its yaw rate's scale is taken as
-        known even where the drive turned too little to fit the scale for another drive: what error it has is
-        in the turns of this drive, the very turns it was fitted to. Widened as an unknown scale, graph-batch's mean
-        RMS on the paper profile's drives (paper-straight and paper-comprehensive, seeds 0-5), whose turns are
-        too few to fit a scale, went from 1.041 to 1.109 m (ideal profile: 0.230 to 0.236 m)."""
-        final = GraphBatch(config, self.layout, self.range_model, self.initial_pose, profile)
-        final.widens_uncalibrated_scales = False
-        return final, final.run(drive)
+    def _calibration_solve(self, config: GraphConfig, profile=None) -> GraphBatch:
+        """One solve of the self-calibration (:meth:`run`), whose odometry never takes the uncalibrated scale
+        densities (:attr:`widens_uncalibrated_scales`): the first solve loosens it to fit the scales; the final
+        solves have the scales fitted to this drive's own turns, even where it turned too little to fit them for
+        another drive (widened, graph-batch's mean RMS on the paper profile's drives, paper-straight and
+        paper-comprehensive seeds 0-5, went from 1.041 to 1.109 m, ideal 0.230 to 0.236 m); a drive too short to
+        calibrate on is solved as configured (widened, a 15 s drive started by a user heading 180 degrees off
+        stayed 8.3 m off in the inertial graph)."""
+        solve = GraphBatch(config, self.layout, self.range_model, self.initial_pose, profile)
+        solve.widens_uncalibrated_scales = False
+        return solve
 
     def start(self, drive: Drive) -> None:
         super().start(drive)
