@@ -88,4 +88,13 @@ def naming_file(path: str | os.PathLike) -> Iterator[None]:
     except GraphposError as exc:
         if str(path) in str(exc):
             raise
-        raise type(exc)(f"{path}: {exc}") from None
+        raise renamed(exc, f"{path}: {exc}") from None
+
+
+def renamed(exc: GraphposError, message: str) -> GraphposError:
+    """``exc`` with ``message``: the same class and attributes, its constructor not called (some take more
+    than a message: :class:`~graphpos.profile.ImplausibleProfileError`)."""
+    out = type(exc).__new__(type(exc))
+    out.__dict__.update(exc.__dict__)
+    out.args = (message,)
+    return out

@@ -62,12 +62,18 @@ PLAUSIBLE_LIMITS = {
 }
 
 
+def _is_number(value: Any) -> bool:
+    """A finite int or float (JSON's true and false are not numbers here)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 class ImplausibleProfileError(ConfigError):
     """A profile field outside :data:`PLAUSIBLE_LIMITS`: ``name``, ``value`` and the ``limits`` (lo, hi)."""
 
     def __init__(self, name: str, value: Any, limits: tuple[float, float]):
         self.name, self.value, self.limits = name, value, limits
-        super().__init__(f"sensor profile: {name} = {value!r} is outside the plausible range [{limits[0]:g}, {limits[1]:g}]")
+        what = "is outside the plausible range" if _is_number(value) else "is not a number; plausible range"
+        super().__init__(f"sensor profile: {name} = {value!r} {what} [{limits[0]:g}, {limits[1]:g}]")
 
 
 @dataclass(frozen=True)
@@ -126,11 +132,11 @@ class SensorProfile:
     def __post_init__(self) -> None:
         for name, (lo, hi) in PLAUSIBLE_LIMITS.items():
             value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and lo <= value <= hi):
+            if not (_is_number(value) and lo <= value <= hi):
                 raise ImplausibleProfileError(name, value, (lo, hi))
         for name in ("range_sigma0_m", "range_sigma_slope", "range_sigma_scale", "heading_noise_radps_per_sqrt_s", "turn_scale_density_per_sqrt_s"):
             value = getattr(self, name)
-            if value is not None and not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+            if value is not None and not (_is_number(value) and value >= 0):
                 raise ConfigError(f"sensor profile: {name} must be a non-negative number or null, got {value!r}")
 
     # -- use ----------------------------------------------------------------------

@@ -327,3 +327,33 @@ def test_config_corpus(capsys, tmp_path, samples, case):
     outcome = _check(capsys, tmp_path, "simulate-config", CONFIG_COMMANDS["simulate-config"], path, names,
                      valid=names is None)
     assert outcome == ("ok" if names is None else "error")
+
+
+# -- sensor profiles (--profile) ------------------------------------------------------------------------------------
+_KIND = {"kind": "graphpos-sensor-profile"}
+#: A profile a user edited by hand: (content, what the one line must say).
+PROFILE_CASES = {
+    "not-json": ("{", "not a JSON sensor profile"),
+    "no-kind": ({"yaw_rate_scale": 1.1}, "not a graphpos sensor profile"),
+    "unknown-field": ({**_KIND, "colour": 1}, "unknown field(s) colour"),
+    "implausible": ({**_KIND, "wheel_scale": 0}, "wheel_scale = 0 is outside the plausible range"),
+    "text": ({**_KIND, "yaw_rate_scale": "abc"}, "yaw_rate_scale = 'abc' is not a number"),
+    "boolean": ({**_KIND, "gyro_bias_radps": True}, "gyro_bias_radps = True is not a number"),
+    "negative-noise": ({**_KIND, "heading_noise_radps_per_sqrt_s": -1}, "must be a non-negative number"),
+}
+PROFILE_COMMANDS = {
+    "run": ["run", "{drive}", "-e", "dr", "--profile", "{file}", "--out-dir", "{out}/run"],
+    "evaluate": ["evaluate", "{drive}", "-e", "dr", "--profile", "{file}", "-o", "{out}/eval", "--workers", "1",
+                 "--no-progress"],
+}
+
+
+@pytest.mark.parametrize("command", list(PROFILE_COMMANDS))
+@pytest.mark.parametrize("case", list(PROFILE_CASES))
+def test_profile_corpus(capsys, tmp_path, samples, case, command):
+    """Every bad profile is one line naming the file and the field (an implausible value was a TypeError's traceback)."""
+    content, names = PROFILE_CASES[case]
+    path = tmp_path / f"{case}.json"
+    path.write_text(content if isinstance(content, str) else json.dumps(content))
+    argv = [a.replace("{drive}", str(samples["sim"])) for a in PROFILE_COMMANDS[command]]
+    assert _check(capsys, tmp_path, command, argv, path, names, valid=False) == "error"
