@@ -76,9 +76,9 @@ class StartPose:
     yaw_sigma_rad: float = math.radians(5.0)
 
     def __post_init__(self) -> None:
-        values = (self.east_m, self.north_m, self.yaw_rad, self.position_sigma_m, self.yaw_sigma_rad)
-        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
-            raise ConfigError(f"initial pose needs finite numbers, got {values}")
+        values = self.to_dict()
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values.values()):
+            raise ConfigError("initial pose needs finite numbers, got " + ", ".join(f"{k} = {v!r}" for k, v in values.items()))
         if abs(self.east_m) > 1e7 or abs(self.north_m) > 1e7:
             raise ConfigError(f"initial pose ({self.east_m:g}, {self.north_m:g}) m is not a plausible local position")
         if not (self.position_sigma_m > 0 and self.yaw_sigma_rad > 0):
@@ -91,8 +91,8 @@ class StartPose:
             values = [float(v) for v in text.split(",")]
         except ValueError:
             values = []
-        if len(values) not in (3, 4, 5):
-            raise ConfigError(f"initial pose must be E,N,YAW_DEG[,SIGMA_M[,SIGMA_YAW_DEG]], got '{text}'")
+        if len(values) not in (3, 4, 5) or not all(math.isfinite(v) for v in values):
+            raise ConfigError(f"initial pose must be E,N,YAW_DEG[,SIGMA_M[,SIGMA_YAW_DEG]], finite numbers, got '{text}'")
         e, n, yaw_deg = values[:3]
         sigma_m = values[3] if len(values) > 3 else 1.0
         sigma_yaw_deg = values[4] if len(values) > 4 else 5.0
