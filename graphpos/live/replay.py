@@ -52,7 +52,8 @@ class Damage:
 
 @dataclass
 class ReplayCounts:
-    """What the replay sent and did."""
+    """What the replay sent and did: ``messages`` the drive's measurements, ``sent`` the datagrams that carried
+    them (duplicates counted, lost ones not; the end-of-drive message, sent three times, not counted)."""
 
     messages: int = 0
     sent: int = 0
@@ -161,6 +162,6 @@ def replay(drive: Drive, send: Callable[[bytes], None], speed: float = 1.0, dama
         out(payload)
     end = encode_end(seq + 1)
     for _ in range(3):
-        out(end)
+        send(end)
         time.sleep(0.05)
     return counts

@@ -122,6 +122,7 @@ def test_a_damaged_udp_stream_runs_to_the_end_with_the_damage_counted(drive_path
     assert final["ended"]
     n = sent["messages"]
     assert sent["lost"] > 0.03 * n and sent["duplicated"] > 0.03 * n and sent["reordered"] > 0.03 * n and sum(sent["malformed"].values()) > 0
+    assert sent["sent"] == n - sent["lost"] + sent["duplicated"]  # the datagrams of the measurements, no more
     # the end-of-drive message is sent three times: the two copies after it are never read
     assert final["duplicates"] == sent["duplicated"]
     assert final["malformed_total"] == sum(sent["malformed"].values())
