@@ -58,14 +58,15 @@ from dataclasses import dataclass, field, replace
 
 import gtsam
 import numpy as np
-from gtsam.symbol_shorthand import C, L, R
+from gtsam.symbol_shorthand import L, R
 
+from filters.models.angles import wrap_angle
 from graphpos.drive import Channel, Drive, Measurement, RowRun
 from graphpos.graph.calibration import MIN_NOISE_FIT_DOF
 from graphpos.graph.config import GraphConfig
 from graphpos.ignition import Ignition, IgnitionConfig, StartPose, StartState, between_walls, rival_gap
 from graphpos.profile import SensorProfile
-from graphpos.graph.models import COMPASS_BIAS_KEY, GRAVITY_MPS2, KeyframeState, robust
+from graphpos.graph.models import GRAVITY_MPS2, KeyframeState, robust
 from graphpos.graph.smoothers import ValuesSource
 from graphpos.graph.odometry import OdometryDelta, PlanarOdometry
 from graphpos.ranging.drive_models import ranges_by_field
@@ -272,11 +273,7 @@ class GraphBuilder:
         self._landmarks: dict[tuple[str, int], tuple[int, float]] = {}
         self._landmark_count = 0
         self._backlog: list[Increment] = []
-        #: Variables the held track's keyframes share (landmarks, the compass frame) and their values, for the release.
-        self._backlog_shared: dict[int, object] = {}
-        #: The compass frame (:meth:`_compass_frame_key`) of the current track: (key, time of its last reading), or None.
-        self._compass_frame: tuple[int, float] | None = None
-        self._compass_frame_count = 0
+        self._backlog_landmarks: dict[int, np.ndarray] = {}
         self._ignition_args = dict(tags_en_m=np.column_stack([drive.tags.east_m, drive.tags.north_m]), wall_side=drive.tags.wall_side,
                                    has_wheel=drive.has("wheel"),
                                    config=IgnitionConfig(compass_sigma_rad=config.compass_sigma_rad, max_yaw_sigma_rad=START_MAX_YAW_SIGMA_RAD))
@@ -499,6 +496,8 @@ class GraphBuilder:
         if ch not in ABSOLUTE_FIELDS or not all([self._finite(m, name) for name in ABSOLUTE_FIELDS[ch]]):
             return None
         if ch == "compass":
+            if self.corrections.compass_bias_rad:
+                v = self.corrections.corrected_values("compass", v)  # a compass bias learnt online (graph-isam2)
             return ("compass", float(v["yaw_rad"]))
         if ch == "rsu":
             if math.isfinite(v.get("range_m", math.nan)):
@@ -553,7 +552,6 @@ class GraphBuilder:
         self.ignition = Ignition(**self._ignition_args)
         self._start = None
         self._landmarks = {}
-        self._compass_frame = None
 
     def _end_segment(self) -> list[Increment]:
         """The track ends (its odometry is lost, or the drive ends).
@@ -602,7 +600,7 @@ class GraphBuilder:
             self.speeds.pop(k, None)
         self.last_keyframe = seg.first - 1
         self._backlog = []
-        self._backlog_shared = {}
+        self._backlog_landmarks = {}
 
     # -- start-up -------------------------------------------------------------
     def _ignite_with(self, t_s: float, entry: tuple) -> None:
@@ -786,10 +784,7 @@ class GraphBuilder:
         for k, _, entry in ready:
             kind = entry[0]
             if kind == "compass":
-                if c.compass_bias == "estimate" and not inc.late:
-                    inc.factors.add(self.model.compass_bias_factor(k, entry[1], c.compass_sigma_rad, self._compass_frame_key(inc)))
-                else:
-                    inc.factors.add(self.model.compass_factor(k, entry[1], c.compass_sigma_rad))
+                inc.factors.add(self.model.compass_factor(k, entry[1], c.compass_sigma_rad))
                 if self.keep_history:
                     self.compass_records.append((k, entry[1]))
             elif kind == "fix":
@@ -850,6 +845,10 @@ class GraphBuilder:
                 b = r.bearing_rad if math.isfinite(r.bearing_rad) else 0.0
                 r.reading_m = max(r.reading_m - bearing2 * b * b - offset, 0.0)
 
+    def correct_compass_records(self, bias_rad: float) -> None:
+        """Correct the recorded compass readings as a learnt compass bias corrects those to come: ``reading - bias``."""
+        self.compass_records = [(k, wrap_angle(yaw - bias_rad)) for k, yaw in self.compass_records]
+
     def range_factor(self, record: RangeRecord, scale: float, offset: float = 0.0):
         """Rebuild a recorded range factor for another range scale and offset: ``(reading - offset) / scale``."""
         noise = robust(record.sigma_m / scale, self.config)
@@ -904,6 +903,8 @@ class GraphBuilder:
     def estimate_compass_bias(self, sigma_rad: float | None, values: gtsam.Values) -> gtsam.Values:
         """From now on :meth:`graph` carries the compass bias (prior zero +- ``sigma_rad``; None: it no longer does);
         ``values`` with the compass frame added at zero bias where the graph has it and they do not."""
+        from graphpos.graph.models import COMPASS_BIAS_KEY
+
         self.compass_bias_sigma_rad = sigma_rad
         if sigma_rad is None or not self.compass_records or values.exists(COMPASS_BIAS_KEY):
             return values
@@ -920,13 +921,6 @@ class GraphBuilder:
         (:attr:`states`), landmarks their map position.
         """
         values = gtsam.Values(recent)
-        # the online compass frames (_compass_frame_key): the whole-drive graph has one, COMPASS_BIAS_KEY, which
-        # starts where the newest stood (unused by a graph without the compass bias)
-        frames = [C(i) for i in range(1, self._compass_frame_count + 1) if values.exists(C(i))]
-        if frames and not values.exists(COMPASS_BIAS_KEY):
-            values.insert(COMPASS_BIAS_KEY, values.atPose2(frames[-1]) if self.model.name == "planar" else values.atPose3(frames[-1]))
-        for key in frames:
-            values.erase(key)
         for k in sorted(self.states):
             if values.exists(self.model.pose_key(k)):
                 continue
@@ -980,52 +974,13 @@ class GraphBuilder:
             self._add(inc, factors)
             inc.values.insert(key, point)
             if not (self.anchored or inc.late):
-                self._backlog_shared[key] = point
+                self._backlog_landmarks[key] = point
             if self.keep_history:
                 self.landmark_positions[key] = np.array([e, n])
         if not inc.late:
             self._landmarks[which] = (key, t_k)
         inc.timestamps[key] = t_k
         return key
-
-    def _compass_frame_key(self, inc: Increment) -> int:
-        """The compass frame of the online graph: the compass's bias as a variable every compass factor shares.
-
-        A compass deviated by its installation (the car's steel) reads
-        ``yaw + bias`` throughout; taken as white noise, a bias of 2 degrees
-        holds the heading off and the track sideways between tags. graph-batch
-        solves for it (:meth:`graph`, ``config.compass_bias``); online, the
-        frame ``C(1), C(2) ...`` is kept in the smoother as a landmark is: one
-        key while its readings come within ``landmark_lifetime_s`` of each other
-        (its time refreshed by each, so the smoother never marginalises it
-        while they come), a fresh one with the prior (zero +- ``compass_bias_sigma_rad``)
-        after a longer gap or a new track. ``C(0)`` is the whole-drive solves'
-        (:data:`~graphpos.graph.models.COMPASS_BIAS_KEY`). It replaced
-        graph-isam2's learnt bias, applied to the readings to come once a
-        second learning confirmed it: on paper-profile drives (compasses
-        1.5-2.5 degrees off; paper-straight and paper-comprehensive) mean RMS
-        over seeds 0-2 2.86 to 2.39 m, fresh seeds 5-9 3.43 to 2.01 m;
-        graph-fixed-lag, which learnt none, 2.94 to 2.38 and 3.52 to 1.89 m.
-        """
-        known = self._compass_frame
-        if known is not None and inc.t_s - known[1] <= self.landmark_lifetime_s:
-            key = known[0]
-        else:
-            self._compass_frame_count += 1
-            key = C(self._compass_frame_count)
-            prior, value = self.model.compass_bias_prior(self.config.compass_bias_sigma_rad, key)
-            inc.factors.add(prior)
-            inc.values.insert(key, value)
-            if not self.anchored:
-                self._backlog_shared[key] = value
-        self._compass_frame = (key, inc.t_s)
-        inc.timestamps[key] = inc.t_s
-        return key
-
-    @property
-    def compass_frame_key(self) -> int | None:
-        """The current track's compass frame (:meth:`_compass_frame_key`), or None."""
-        return None if self._compass_frame is None else self._compass_frame[0]
 
     def _landmark_position(self, which: tuple[str, int]) -> tuple[float, float]:
         return self.tags[which[1]][:2] if which[0] == "tag" else self.rsus[which[1]]
@@ -1074,12 +1029,12 @@ class GraphBuilder:
     def _start_from_piece(self, first: int, last_k: int) -> StartState | None:
         """:meth:`_start_from_graph` on the held track's keyframes ``first`` to ``last_k``."""
         records = [r for r in self.range_records
-                   if first <= r.keyframe <= last_k and r.landmark_key in self._backlog_shared]
+                   if first <= r.keyframe <= last_k and r.landmark_key in self._backlog_landmarks]
         if len(records) < 3:
             return None
         said = self.diagnostics.setdefault("graph_start", [])
         c = self._ignition_args["config"]
-        keys = {self.model.pose_key(k) for k in range(first, last_k + 1)} | set(self._backlog_shared)
+        keys = {self.model.pose_key(k) for k in range(first, last_k + 1)} | set(self._backlog_landmarks)
         graph = gtsam.NonlinearFactorGraph()
         for inc in self._backlog:
             for i in range(inc.factors.size()):
@@ -1087,10 +1042,10 @@ class GraphBuilder:
                 if factor is not None and all(key in keys for key in factor.keys()):
                     graph.push_back(factor)
         landmarks = gtsam.Values()
-        for key, point in self._backlog_shared.items():
+        for key, point in self._backlog_landmarks.items():
             landmarks.insert(key, point)
         last = records[-1]
-        mark = np.asarray(self._backlog_shared[last.landmark_key])
+        mark = np.asarray(self._backlog_landmarks[last.landmark_key])
         ref = self.states[last.keyframe]
         params = gtsam.LevenbergMarquardtParams()
         params.setMaxIterations(self.config.batch_max_iterations)
@@ -1168,14 +1123,14 @@ class GraphBuilder:
         """
         merged = Increment(last.keyframe if last else self.last_keyframe, last.t_s if last else self.keyframe_time(self.last_keyframe), anchoring=True)
         window = [inc for inc in self._backlog if inc.t_s >= merged.t_s - self.release_window_s] or self._backlog[-1:]
-        allowed = set(self._backlog_shared)
+        allowed = set(self._backlog_landmarks)
         for inc in window:
             allowed.update(self.model.keyframe_keys(inc.keyframe))
             merged.released.append(inc.keyframe)
         first = merged.released[0]
         extra = self.model.first_keyframe_keys(first)  # e.g. the bias node in effect, created before the window
         allowed.update(extra)
-        marks = set(self._backlog_shared)
+        marks = set(self._backlog_landmarks)
         in_window = {id(inc) for inc in window}
         for inc in self._backlog:
             # older increments give only their landmark priors: every held
@@ -1193,7 +1148,7 @@ class GraphBuilder:
         if extra:
             self.model.insert_bias(merged.values, first, self.states[first])
             merged.timestamps.update({key: self.keyframe_time(first) for key in extra})
-        for key, point in self._backlog_shared.items():
+        for key, point in self._backlog_landmarks.items():
             merged.values.insert(key, point)
             merged.timestamps.setdefault(key, merged.t_s)
         if start_keyframe is not None:
@@ -1206,7 +1161,7 @@ class GraphBuilder:
             sigma_yaw = min(inflation * st.yaw_sigma_rad, math.pi)
             self._add(merged, self.model.prior_factors(at, self.states[at], sigma_m, sigma_yaw))
         self._backlog = []
-        self._backlog_shared = {}
+        self._backlog_landmarks = {}
         self.anchored = self.started = True
         return merged
 

@@ -300,11 +300,6 @@ class _GraphEstimator(Estimator):
             "update_ms_max": float(times.max() * 1e3),
             "range_scale": self.builder.range_scale,
         }
-        frame = self.builder.compass_frame_key
-        if frame is not None and self.smoother is not None and self.smoother.holds(frame):  # the online graph's compass bias at the end
-            estimate = self.smoother.estimate()
-            diagnostics["compass_bias_online"] = {"bias_rad": self.model.compass_bias(estimate, frame),
-                                                  "sigma_rad": float(math.sqrt(self.smoother.marginal(frame)[2, 2]))}
         if self._scales:
             scales = np.asarray(self._scales)
             diagnostics["covariance_scale"] = {"checks": int(scales.size), "mean": float(scales.mean()), "max": float(scales.max()),
@@ -362,10 +357,9 @@ class GraphIsam2(_GraphEstimator):
     (:func:`~graphpos.graph.calibration.fit_range_terms`) corrects the
     recorded readings as well (:meth:`GraphBuilder.correct_range_records`),
     so the next learning fits what is left (MRCLAM6 mean RMS 0.526 to
-    0.431 m; robot 1 worse, 0.446 to 0.514 m). The compass bias is not
-    learnt: the online graph carries it as a variable
-    (:meth:`GraphBuilder._compass_frame_key`; ``compass_bias``), and the
-    learning's solve solves for it with the rest. Until a
+    0.431 m; robot 1 worse, 0.446 to 0.514 m); so does the compass bias
+    (``compass_bias``, solved for in the learning solve and applied when
+    significant), correcting the recorded compass readings as well. Until a
     learning has fitted the yaw rate's scale, the inertial graph's IMU factors
     take the turn-rate scale density of an uncalibrated yaw rate
     (``config.uncalibrated_turn_scale_density_per_sqrt_s``). Only data received so far is
@@ -402,6 +396,7 @@ class GraphIsam2(_GraphEstimator):
         self._next_learn_s = LEARN_FIRST_S if self.learns_online else None
         self._learnt_k = 0
         self._learning: list[dict] = []
+        self._compass_seen: tuple[float, float] | None = None  # the total compass bias the last learning found, and its sigma
         self._implausible_said = False  # whether a learning left out as implausible has been said
 
     def _apply(self, increments: list[Increment]) -> list[OutputRow]:
@@ -436,8 +431,8 @@ class GraphIsam2(_GraphEstimator):
             graph = b.graph(scale, extra_turn_density2=loose2)
             values = optimise(graph, values, c, what, relative_tol=1e-3)
             found = fit_profile(b, values, c, self._drive_name, since_keyframe=self._learnt_k)
-            if found is not None:  # the online graph carries the compass bias itself (GraphBuilder._compass_frame_key)
-                found = dataclasses.replace(found, compass_bias_rad=0.0)
+            if found is not None and found.compass_bias_rad:
+                found = dataclasses.replace(found, compass_bias_rad=self._confirmed_compass_bias(found.compass_bias_rad, graph, values, what))
         except ImplausibleProfileError as exc:
             # online, one learning that no sensor can have is left out (and said), not the run's end
             found = None
@@ -446,7 +441,7 @@ class GraphIsam2(_GraphEstimator):
                 b.diagnostics.setdefault("warnings", []).append(
                     f"{implausible_calibration(exc, self._drive_name)} (at keyframe {k}; that learning was left out)")
         finally:
-            b.estimate_compass_bias(None, values)
+            b.estimate_compass_bias(None, values)  # the final smoothing's graph has the compass as corrected
         if found is None:
             return
         # a camera's bearing term (with its offset) corrects the readings to come and those recorded; other
@@ -457,6 +452,8 @@ class GraphIsam2(_GraphEstimator):
             range_bearing2_m_per_rad2=found.range_bearing2_m_per_rad2 if camera else 0.0))
         if camera:
             b.correct_range_records(found.range_offset_m, found.range_bearing2_m_per_rad2)
+        if found.compass_bias_rad:
+            b.correct_compass_records(found.compass_bias_rad)
         range_model = found.range_model() if reported and self.range_model is None else None
         b.recalibrate(corrections, scale, range_model)
         rebuilt = self._rebuild_ranges(values, what) if range_model is not None else 0
@@ -464,7 +461,30 @@ class GraphIsam2(_GraphEstimator):
         self._learning.append({"keyframe": k, "range_scale": scale, "gyro_bias_radps": corrections.gyro_bias_radps,
                                "yaw_rate_scale": corrections.yaw_rate_scale, "wheel_scale": corrections.wheel_scale,
                                "range_offset_m": corrections.range_offset_m, "range_bearing2_m_per_rad2": corrections.range_bearing2_m_per_rad2,
-                               "ranges_rebuilt": rebuilt})
+                               "compass_bias_rad": corrections.compass_bias_rad, "ranges_rebuilt": rebuilt})
+
+    def _confirmed_compass_bias(self, found_rad: float, graph: gtsam.NonlinearFactorGraph, values: gtsam.Values, what: str) -> float:
+        """The learnt compass bias (on the readings as corrected so far) to apply: ``found_rad``, or 0 until confirmed.
+
+        A bias is applied when it is significant (beyond
+        :data:`COMPASS_BIAS_SIGNIFICANCE` sigmas of its marginal) and the
+        previous learning, on half the data, found the same total bias to
+        within as many sigmas of the two's difference: a deviation is constant, while a fault that
+        displaces the track for a while (GNSS multipath, a magnetic
+        disturbance) puts a bias on one learning's solve that the next,
+        longer one does not repeat (urban-rsu-gnss with 21 s of multipath:
+        -3.8 degrees at 30 s, -0.4 at 60 s; applied at once, graph-isam2
+        never recovered from the multipath). The compass factors already in
+        the window keep their readings: swapped for corrected ones (as the
+        ranges are), iSAM2 relinearised for seconds after and its CPU rose
+        3-4x on paper-profile drives for 0.1-0.2 m.
+        """
+        sigma = math.sqrt(marginal_covariances(graph, values, [COMPASS_BIAS_KEY], what)[0][2, 2])
+        total = self.builder.corrections.compass_bias_rad + found_rad
+        previous, self._compass_seen = self._compass_seen, (total, sigma)
+        if abs(found_rad) < COMPASS_BIAS_SIGNIFICANCE * sigma or previous is None:
+            return 0.0
+        return found_rad if abs(total - previous[0]) < COMPASS_BIAS_SIGNIFICANCE * math.hypot(sigma, previous[1]) else 0.0
 
     def _rebuild_ranges(self, values: gtsam.Values, what: str) -> int:
         """Swap every range factor in iSAM2's window for one with the learnt scale and sigma.
@@ -525,13 +545,8 @@ class GraphIsam2(_GraphEstimator):
         # smoother's estimate: iSAM2 relinearises only variables that moved
         # past their thresholds, so even within the window a warm
         # Levenberg-Marquardt pass finishes it
-        values = self.builder.history_values(recent)
-        if self.config.compass_bias == "estimate":  # as the online graph carries it
-            values = self.builder.estimate_compass_bias(self.config.compass_bias_sigma_rad, values)
         graph = self.builder.graph()
-        # to 1e-6: the compass bias turns the whole track a little at little cost, and at 1e-4 two solves of one
-        # drive from different starts (a 10 s window's and a whole one's) stopped 4.8 mm apart (0.4 mm), same CPU
-        values = optimise(graph, values, self.config, what, relative_tol=1e-6)
+        values = optimise(graph, self.builder.history_values(recent), self.config, what)
         covs = None
         if self.config.output_covariance:
             covs = marginal_covariances(graph, values, [self.model.pose_key(k) for k in range(self.builder.last_keyframe + 1)], what)
@@ -889,6 +904,9 @@ class GraphBatch(_GraphEstimator):
             rows = [dataclasses.replace(row, cov_en_m2=row.cov_en_m2 + offset.sigma_m**2 * np.outer(j[k], j[k])) for k, row in enumerate(rows)]
         return self._estimate(rows)
 
+
+#: graph-isam2 applies a learnt compass bias beyond this many of its sigmas, found again by the next learning to as many.
+COMPASS_BIAS_SIGNIFICANCE = 2.0
 
 #: graph-isam2 swaps a learning's rebuilt range factors into iSAM2 this many per update (:meth:`GraphIsam2._rebuild_ranges`).
 REBUILD_CHUNK_FACTORS = 1000

@@ -176,8 +176,8 @@ class PlanarModel:
     def compass_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
         return gtsam.PoseRotationPrior2D(X(k), gtsam.Rot2(yaw_rad), compass_noise(sigma_rad, self.config))
 
-    def compass_bias_factor(self, k: int, yaw_rad: float, sigma_rad: float, key: int = COMPASS_BIAS_KEY) -> object:
-        """The compass reading as keyframe ``k``'s yaw in the compass's frame ``key`` (default :data:`COMPASS_BIAS_KEY`).
+    def compass_bias_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
+        """The compass reading as keyframe ``k``'s yaw in the compass's frame :data:`COMPASS_BIAS_KEY`.
 
         ``BetweenFactorPose2(C, X(k))`` measures ``C^-1 X(k)``, whose angle is
         the yaw less the frame's: with the frame's yaw at minus the bias, the
@@ -188,19 +188,19 @@ class PlanarModel:
         no built-in factor between a pose's angle and a Rot2.
         """
         free = COMPASS_FRAME_FREE_SIGMA
-        return gtsam.BetweenFactorPose2(key, X(k), gtsam.Pose2(0.0, 0.0, yaw_rad),
+        return gtsam.BetweenFactorPose2(COMPASS_BIAS_KEY, X(k), gtsam.Pose2(0.0, 0.0, yaw_rad),
                                         compass_noise(np.array([free, free, sigma_rad]), self.config, 3))
 
-    def compass_bias_prior(self, sigma_rad: float, key: int = COMPASS_BIAS_KEY) -> tuple[object, object]:
-        """The compass frame ``key``'s prior (bias zero +- ``sigma_rad``, its origin fixed) and its value there."""
+    def compass_bias_prior(self, sigma_rad: float) -> tuple[object, object]:
+        """The compass frame's prior (bias zero +- ``sigma_rad``, its origin fixed) and its value there."""
         fixed = COMPASS_FRAME_FIXED_SIGMA
         value = gtsam.Pose2()
-        return gtsam.PriorFactorPose2(key, value, gtsam.noiseModel.Diagonal.Sigmas(np.array([fixed, fixed, sigma_rad]))), value
+        return gtsam.PriorFactorPose2(COMPASS_BIAS_KEY, value, gtsam.noiseModel.Diagonal.Sigmas(np.array([fixed, fixed, sigma_rad]))), value
 
     @staticmethod
-    def compass_bias(values: gtsam.Values, key: int = COMPASS_BIAS_KEY) -> float:
-        """The solved compass bias of the compass frame ``key``, rad."""
-        return -values.atPose2(key).theta()
+    def compass_bias(values: gtsam.Values) -> float:
+        """The solved compass bias, rad."""
+        return -values.atPose2(COMPASS_BIAS_KEY).theta()
 
     def predict(self, state: KeyframeState, delta: OdometryDelta, pim) -> KeyframeState:
         pose = gtsam.Pose2(state.east_m, state.north_m, state.yaw_rad).compose(gtsam.Pose2(delta.dx_m, delta.dy_m, delta.dtheta_rad))
@@ -415,23 +415,23 @@ class InertialModel:
         noise = compass_noise(np.array([self.FREE_SIGMA, self.FREE_SIGMA, sigma_rad]), self.config, 3)
         return gtsam.PoseRotationPrior3D(X(k), gtsam.Rot3.Yaw(yaw_rad), noise)
 
-    def compass_bias_factor(self, k: int, yaw_rad: float, sigma_rad: float, key: int = COMPASS_BIAS_KEY) -> object:
-        """The compass reading as keyframe ``k``'s yaw in the compass's frame ``key`` (as :meth:`PlanarModel.compass_bias_factor`)."""
+    def compass_bias_factor(self, k: int, yaw_rad: float, sigma_rad: float) -> object:
+        """The compass reading as keyframe ``k``'s yaw in the compass's frame (as :meth:`PlanarModel.compass_bias_factor`)."""
         free = COMPASS_FRAME_FREE_SIGMA
         noise = compass_noise(np.array([free, free, sigma_rad, free, free, free]), self.config, 6)
-        return gtsam.BetweenFactorPose3(key, X(k), gtsam.Pose3(gtsam.Rot3.Yaw(yaw_rad), np.zeros(3)), noise)
+        return gtsam.BetweenFactorPose3(COMPASS_BIAS_KEY, X(k), gtsam.Pose3(gtsam.Rot3.Yaw(yaw_rad), np.zeros(3)), noise)
 
-    def compass_bias_prior(self, sigma_rad: float, key: int = COMPASS_BIAS_KEY) -> tuple[object, object]:
-        """The compass frame ``key``'s prior (bias zero +- ``sigma_rad``, the rest fixed) and its value there."""
+    def compass_bias_prior(self, sigma_rad: float) -> tuple[object, object]:
+        """The compass frame's prior (bias zero +- ``sigma_rad``, the rest fixed) and its value there."""
         fixed = COMPASS_FRAME_FIXED_SIGMA
         value = gtsam.Pose3()
         sigmas = np.array([fixed, fixed, sigma_rad, fixed, fixed, fixed])
-        return gtsam.PriorFactorPose3(key, value, gtsam.noiseModel.Diagonal.Sigmas(sigmas)), value
+        return gtsam.PriorFactorPose3(COMPASS_BIAS_KEY, value, gtsam.noiseModel.Diagonal.Sigmas(sigmas)), value
 
     @staticmethod
-    def compass_bias(values: gtsam.Values, key: int = COMPASS_BIAS_KEY) -> float:
-        """The solved compass bias of the compass frame ``key``, rad."""
-        return -values.atPose3(key).rotation().yaw()
+    def compass_bias(values: gtsam.Values) -> float:
+        """The solved compass bias, rad."""
+        return -values.atPose3(COMPASS_BIAS_KEY).rotation().yaw()
 
     def predict(self, state: KeyframeState, delta: OdometryDelta, pim) -> KeyframeState:
         nav = gtsam.NavState(self._pose(state), np.array([state.v_east_mps, state.v_north_mps, 0.0]))

@@ -23,9 +23,6 @@ RELINEARIZE_SKIP = 10
 MARGINALISE_EVERY_S = 1.0
 #: The windowed iSAM2 marginalises once per this share of its window.
 WINDOW_MARGINALISE_SHARE = 0.1
-#: iSAM2 relinearisation threshold of the compass bias (rad): a fifth of the planar pose's yaw threshold, as the
-#: bias turns the heading of every keyframe that reads the compass at once.
-COMPASS_BIAS_THRESHOLD_RAD = 1e-3
 
 
 def isam2_params(model_name: str, find_unused_factor_slots: bool = False) -> gtsam.ISAM2Params:
@@ -43,19 +40,16 @@ def isam2_params(model_name: str, find_unused_factor_slots: bool = False) -> gts
     # (Plaza1, MRCLAM6 robots 1 and 4, long-tunnel, paper-imm).
     params.setFactorization("QR")
     thresholds = gtsam.ISAM2ThresholdMap()
-    # the compass frame ("c", :meth:`GraphBuilder._compass_frame_key`): only its yaw, the compass bias, moves
     if model_name == "planar":
         thresholds.insert(("x", np.array([0.02, 0.02, 0.005])))
         thresholds.insert(("l", np.array([1.0, 1.0])))
         thresholds.insert(("r", np.array([1.0, 1.0])))
-        thresholds.insert(("c", np.array([1.0, 1.0, COMPASS_BIAS_THRESHOLD_RAD])))
     else:
         thresholds.insert(("x", np.array([0.02, 0.02, 0.01, 0.05, 0.05, 0.05])))
         thresholds.insert(("v", np.array([0.05, 0.05, 0.05])))
         thresholds.insert(("b", np.array([0.02, 0.02, 0.02, 2e-3, 2e-3, 2e-3])))
         thresholds.insert(("l", np.array([1.0, 1.0, 1.0])))
         thresholds.insert(("r", np.array([1.0, 1.0, 1.0])))
-        thresholds.insert(("c", np.array([1.0, 1.0, COMPASS_BIAS_THRESHOLD_RAD, 1.0, 1.0, 1.0])))
     params.setRelinearizeThreshold(thresholds)
     # Back-substitution stops where an update changes a variable by less than
     # this (m, rad, m/s); the newest keyframe, the causal output, is always

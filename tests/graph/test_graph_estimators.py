@@ -32,8 +32,9 @@ def test_registered_by_name():
 @pytest.mark.parametrize("parameterisation", PARAMETERISATIONS)
 def test_batch_and_final_isam2_agree_within_1cm(parameterisation):
     drive = synthetic_drive(30, seed=1, turn_radps=0.08)
-    # the same graph: no self-calibration in the batch, no online learning in iSAM2 (both carry the compass bias)
-    batch = run("graph-batch", drive, parameterisation=parameterisation, output_covariance=False, wheel_scale="off", self_calibrate=False)
+    # the same graph: no self-calibration in the batch (nor its compass bias state), no online learning in iSAM2
+    batch = run("graph-batch", drive, parameterisation=parameterisation, output_covariance=False, wheel_scale="off", self_calibrate=False,
+                compass_bias="off")
     final = run("graph-isam2", drive, parameterisation=parameterisation, final=True, output_covariance=False, learn_online=False)
     assert len(batch) == len(final) == 301
     gap = np.linalg.norm(batch.position - final.position, axis=1)
@@ -124,10 +125,8 @@ def test_fixed_lag_causal_output_equals_isam2():
     start coming from the ranges at 1 s).
     """
     drive = synthetic_drive(40, seed=4, turn_radps=0.05)
-    # the fixed-lag smoother keeps no history to learn from; each checks its rows' covariances against its own
-    # later estimates on its own schedule (covariance_check: widened up to 8-11 % here, at different rows)
-    full = run("graph-isam2", drive, learn_online=False, covariance_check=False)
-    lag = run("graph-fixed-lag", drive, covariance_check=False)
+    full = run("graph-isam2", drive, learn_online=False)  # the fixed-lag smoother keeps no history to learn from
+    lag = run("graph-fixed-lag", drive)
     gap_m = np.linalg.norm(lag.position - full.position, axis=1)
     assert gap_m.max() < 0.03
     marginalising = lag.t_s > lag.t_s[0] + 12.0

@@ -140,23 +140,21 @@ def test_graph_batch_finds_a_compass_bias_without_truth(bias_deg):
     assert "compass_bias_rad" not in taken_as_noise.diagnostics
 
 
-@pytest.mark.parametrize("name", ["graph-isam2", "graph-fixed-lag"])
-def test_online_graphs_carry_the_compass_bias(name):
-    """The online graphs carry the compass bias as a variable (``compass_bias``, the compass frame).
+def test_graph_isam2_learns_a_compass_bias_online():
+    """graph-isam2 learns the compass bias with its online profile and corrects the readings to come.
 
-    A compass 2 degrees off, taken as white noise, holds the heading off and
-    the track sideways in the drive's stretch without tags (140-180 s): the
-    bias the online graph carries at the end is within half a degree of
-    the 2 degrees, and the track is better than with the bias taken as noise.
+    It applies a bias found again by the next learning (here at 30 s), so
+    the drive is long and its stretch without tags comes late (140-180 s):
+    the corrected compass holds the heading there (measured, seeds 5/6:
+    0.43/0.53 m against 2.25/1.92 m with the bias taken as noise).
     """
     d = synthetic_drive(200, seed=5, tag_gap=(700.0, 900.0))
     d = d.replace(channels={**d.channels, "compass": d.compass.replace(yaw_rad=d.compass.yaw_rad + math.radians(2.0))})
-    est = ESTIMATORS[name]().run(d.without_truth())
-    carried = est.diagnostics["compass_bias_online"]
-    assert math.degrees(carried["bias_rad"]) == pytest.approx(2.0, abs=0.5)
-    assert 0.0 < carried["sigma_rad"] < math.radians(0.5)
-    taken_as_noise = ESTIMATORS[name](GraphConfig(compass_bias="off")).run(d.without_truth())
-    assert "compass_bias_online" not in taken_as_noise.diagnostics
+    est = ESTIMATORS["graph-isam2"]().run(d.without_truth())
+    learnt = [step["compass_bias_rad"] for step in est.diagnostics["online_calibration"]]
+    assert learnt[0] == 0.0  # the first learning's bias waits for the second's
+    assert math.degrees(learnt[-1]) == pytest.approx(2.0, abs=0.5)
+    taken_as_noise = ESTIMATORS["graph-isam2"](GraphConfig(compass_bias="off")).run(d.without_truth())
     assert rms(d, est) < 0.5 * rms(d, taken_as_noise)
 
 
