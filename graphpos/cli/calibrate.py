@@ -68,9 +68,16 @@ def _calibrate(args: argparse.Namespace) -> int:
         raise EstimationError(f"{args.drive}: no profile found: {est.diagnostics.get('not_started', 'the drive has no odometry to calibrate')}")
     found = SensorProfile.from_dict(est.diagnostics["profile"])
     found.save(args.output)
-    print(f"wrote {one_line(str(args.output))}: gyro bias {math.degrees(found.gyro_bias_radps):+.3f} deg/s, yaw-rate scale {found.yaw_rate_scale:.4f}, "
-          f"wheel scale {found.wheel_scale:.4f}, range scale {found.range_scale:.4f}, offset {found.range_offset_m:+.3f} m, "
-          f"range sigma {'-' if found.range_sigma0_m is None else format(found.range_sigma0_m, '.3f')} m")
+    print(f"wrote {one_line(str(args.output))}: {_summary(found)}")
     for line in est.diagnostics.get("warnings", []):  # e.g. a drive too short to determine the noise (as run prints them)
         print(warning_line("calibrate", line), file=sys.stderr)
     return 0
+
+
+def _summary(found: SensorProfile) -> str:
+    """Every term of a profile that a user reads to judge it, in the units they think in."""
+    sigma = "the range model's" if found.range_sigma0_m is None else f"{found.range_sigma0_m:.3f} m"
+    return (f"gyro bias {math.degrees(found.gyro_bias_radps):+.3f} deg/s, yaw-rate scale {found.yaw_rate_scale:.4f}, "
+            f"wheel scale {found.wheel_scale:.4f}, compass bias {math.degrees(found.compass_bias_rad):+.2f} deg, "
+            f"range scale {found.range_scale:.4f}, offset {found.range_offset_m:+.3f} m, sigma {sigma}, "
+            f"reader delay {found.range_delay_s:.2f} s")

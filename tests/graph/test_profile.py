@@ -187,6 +187,8 @@ def test_calibrate_then_run_with_the_profile(biased_drive, tmp_path, capsys):
     assert main(["calibrate", str(drive_file), "-o", str(tmp_path / "p.json")]) == 0
     found = SensorProfile.load(tmp_path / "p.json")
     assert found.range_scale == pytest.approx(RANGE_SCALE, abs=0.01)
+    said = capsys.readouterr().out  # every term found, the compass's and the reader's among them
+    assert f"range scale {found.range_scale:.4f}" in said and "compass bias" in said and "reader delay" in said
     out = tmp_path / "run"
     assert main(["run", str(drive_file), "-e", "graph-fixed-lag", "-e", "fusion-ekf", "--profile", str(tmp_path / "p.json"),
                  "--out-dir", str(out)]) == 0
