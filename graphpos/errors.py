@@ -8,9 +8,10 @@ traceback.
 
 from __future__ import annotations
 
+import math
 import os
 from contextlib import contextmanager
-from typing import Iterator
+from typing import Any, Iterator
 
 
 class GraphposError(Exception):
@@ -89,6 +90,12 @@ def naming_file(path: str | os.PathLike) -> Iterator[None]:
         if str(path) in str(exc):
             raise
         raise renamed(exc, f"{path}: {exc}") from None
+
+
+def is_finite_number(value: Any) -> bool:
+    """Whether a value a user gave (a JSON, TOML or command-line value) is a finite int or float; JSON's true
+    and false are not numbers here."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
 
 
 def renamed(exc: GraphposError, message: str) -> GraphposError:

@@ -52,7 +52,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
-from graphpos.errors import ConfigError
+from graphpos.errors import ConfigError, is_finite_number
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,7 @@ class StartPose:
 
     def __post_init__(self) -> None:
         values = self.to_dict()
-        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values.values()):
+        if not all(is_finite_number(v) for v in values.values()):
             raise ConfigError("initial pose needs finite numbers, got " + ", ".join(f"{k} = {v!r}" for k, v in values.items()))
         if abs(self.east_m) > 1e7 or abs(self.north_m) > 1e7:
             raise ConfigError(f"initial pose ({self.east_m:g}, {self.north_m:g}) m is not a plausible local position")

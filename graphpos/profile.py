@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from graphpos.drive import Drive
-from graphpos.errors import ConfigError, FileFormatError
+from graphpos.errors import ConfigError, FileFormatError, is_finite_number
 
 #: Plausible limits of each correction; a profile outside them is refused.
 PLAUSIBLE_LIMITS = {
@@ -62,17 +62,12 @@ PLAUSIBLE_LIMITS = {
 }
 
 
-def _is_number(value: Any) -> bool:
-    """A finite int or float (JSON's true and false are not numbers here)."""
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-
-
 class ImplausibleProfileError(ConfigError):
     """A profile field outside :data:`PLAUSIBLE_LIMITS`: ``name``, ``value`` and the ``limits`` (lo, hi)."""
 
     def __init__(self, name: str, value: Any, limits: tuple[float, float]):
         self.name, self.value, self.limits = name, value, limits
-        what = "is outside the plausible range" if _is_number(value) else "is not a number; plausible range"
+        what = "is outside the plausible range" if is_finite_number(value) else "is not a number; plausible range"
         super().__init__(f"sensor profile: {name} = {value!r} {what} [{limits[0]:g}, {limits[1]:g}]")
 
 
@@ -132,11 +127,11 @@ class SensorProfile:
     def __post_init__(self) -> None:
         for name, (lo, hi) in PLAUSIBLE_LIMITS.items():
             value = getattr(self, name)
-            if not (_is_number(value) and lo <= value <= hi):
+            if not (is_finite_number(value) and lo <= value <= hi):
                 raise ImplausibleProfileError(name, value, (lo, hi))
         for name in ("range_sigma0_m", "range_sigma_slope", "range_sigma_scale", "heading_noise_radps_per_sqrt_s", "turn_scale_density_per_sqrt_s"):
             value = getattr(self, name)
-            if value is not None and not (_is_number(value) and value >= 0):
+            if value is not None and not (is_finite_number(value) and value >= 0):
                 raise ConfigError(f"sensor profile: {name} must be a non-negative number or null, got {value!r}")
 
     # -- use ----------------------------------------------------------------------

@@ -111,7 +111,7 @@ from scipy.spatial.transform import Rotation
 
 from graphpos.drive import (CHANNEL_NAMES, CHANNEL_SPECS, RSU_SPECS, TAG_SPECS, Channel, Drive, GeoOrigin, RsuMap, TagMap,
                             truth_from_poses)
-from graphpos.errors import ConfigError, DriveError, FileFormatError
+from graphpos.errors import ConfigError, DriveError, FileFormatError, is_finite_number
 from graphpos.io.files import read_input
 from graphpos.io.geo import geodetic_to_enu
 
@@ -348,7 +348,7 @@ def _text(value: Any, where: str) -> str:
 
 
 def _finite(value: Any, where: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+    if not is_finite_number(value):
         raise ConfigError(f"{where}: expected a finite number, got {value!r}")
     return float(value)
 
