@@ -825,8 +825,8 @@ def _fill_summary(sec, exps: list[Experiment], res: dict, sources: dict[str, dic
                 "filter. The main cause is the profile's compass, which deviates by a constant "
                 f"{_PAPER_COMPASS['bias_min_deg']:g}-{_PAPER_COMPASS['bias_max_deg']:g} degrees. "
                 "graph-batch solves for that deviation over the whole drive. graph-isam2 applies a deviation it "
-                "learnt online only once a second, longer learning finds it again: on these 76 s tests that is "
-                "60 s in. graph-fixed-lag keeps no history to learn it from. A profile calibrated on an earlier "
+                "learnt online only once a second, longer learning finds it again, on these 76 s tests only in "
+                "their last part. graph-fixed-lag keeps no history to learn it from. A profile calibrated on an earlier "
                 "drive of the same sensors (graphpos calibrate, then --profile) gives them the deviation from the "
                 "start (README, 'Starting an estimator and calibrating a sensor set')." if primary == PAPER_PROFILE else ""))
     sec.table(["table", "window", "best paper estimator (ours)", RANGES_ONLY_GRAPH, *GRAPH_ESTIMATORS], best_rows,
