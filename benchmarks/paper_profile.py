@@ -44,17 +44,13 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from eval.execution import Job, SimSource, run_job  # noqa: E402
-from eval.experiments import LIU2016_BOUND_M, Experiment, experiments  # noqa: E402
+from eval.experiments import LIU2016_BOUND_M, ORDERING_ONLY_TABLES, Experiment, experiments  # noqa: E402
 from eval.reproduce import paired_difference, reversal_verdict  # noqa: E402
 
 #: The tables the paper profile reproduces (issue 17).
 TABLES = ("song2016-table3", *(f"song2016-table4/{p}" for p in (
     "accel", "decel", "constant", "accel-variable", "decel-variable", "lane-change-straight", "lane-change-curve")),
     "song2016b-tableI", "song2014-table4-whole", "song2014-table4-tunnel", "song2014-table5", "song2014-table6")
-#: Tables whose orderings must hold on the profile too but whose magnitudes
-#: are not among the 47 targets (issue 17 names the tables above; issue 20
-#: asks every other table's ordering to hold): the RFID-only Tables 2.
-ORDERING_ONLY = ("song2016-table2", "song2014-table2")
 #: Within +-30 % of the published RMS.
 TOLERANCE = 0.30
 #: The target: at least this fraction of the figures matched.
@@ -70,7 +66,7 @@ class Figure:
     label: str
     published_rms: float
     ours: list[float]
-    #: False for a figure of an :data:`ORDERING_ONLY` table.
+    #: False for a figure of an :data:`ORDERING_ONLY_TABLES` table.
     counted: bool = True
 
     @property
@@ -136,7 +132,7 @@ _ONLY: tuple[str, ...] | None = None
 
 def _tables() -> list[Experiment]:
     by_key = {e.key: e for e in experiments()}
-    return [by_key[k] for k in (*TABLES, *ORDERING_ONLY) if _ONLY is None or k.startswith(_ONLY)]
+    return [by_key[k] for k in (*TABLES, *ORDERING_ONLY_TABLES) if _ONLY is None or k.startswith(_ONLY)]
 
 
 def run_tables(seeds: tuple[int, ...], profile: str = "paper", extra: dict[str, Any] | None = None,
@@ -160,7 +156,7 @@ def run_tables(seeds: tuple[int, ...], profile: str = "paper", extra: dict[str, 
                 m = cache[key]
                 ours.append(m["windows"][exp.window]["position"]["rms_m"] if m else float("nan"))
             figures.append(Figure(exp.key, row.estimator, row.label, row.published[1], ours,
-                                  counted=exp.key not in ORDERING_ONLY))
+                                  counted=exp.key not in ORDERING_ONLY_TABLES))
         if progress:
             print(f"  [{time.perf_counter() - t0:6.0f} s] {exp.key}", file=sys.stderr, flush=True)
     orderings = []

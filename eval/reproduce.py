@@ -64,8 +64,8 @@ from eval import plots
 from eval.bounds import BOUND_LABELS, NO_BOUND, DriveBound, bound_kind, bound_label, bounds_cell, drive_bounds
 from eval.evaluate import Outcome, add_failure_section, cell_error, result_record
 from eval.execution import Job, JobResult, SimSource, execute, load_drive, provenance
-from eval.experiments import (GRAPH_ESTIMATORS, LIU2016_BOUND_M, RANGES_ONLY_GRAPH, SONG2016_TABLE4, Experiment, Row,
-                              experiments)
+from eval.experiments import (GRAPH_ESTIMATORS, LIU2016_BOUND_M, ORDERING_ONLY_TABLES, RANGES_ONLY_GRAPH, SONG2016_TABLE4,
+                              Experiment, Row, experiments)
 from eval.metrics import WHOLE
 from eval.names import sensors_of, window_name
 from eval.report import Report, fmt, mean_spread, write_json
@@ -776,6 +776,7 @@ def _fill_summary(sec, exps: list[Experiment], res: dict, sources: dict[str, dic
     primary = list(profiles)[-1]
     order_rows, best_rows, record = [], [], {"orderings": [], "matches": {}}
     matched = {p: [0, 0] for p in profiles}
+    targets = {p: [0, 0] for p in profiles}  # the same, without the ORDERING_ONLY_TABLES
     for exp in exps:
         rms = {p: {r: mean_stat(_results(res, sources[exp.key][p], r), exp.window, "rms_m")
                    for r in exp.all_rows()} for p in profiles}
@@ -796,8 +797,9 @@ def _fill_summary(sec, exps: list[Experiment], res: dict, sources: dict[str, dic
                 continue
             pubs = [(rms[p][r], r.published[1]) for r in exp.rows if r.published]
             good = sum(np.isfinite(o) and abs(o / pub - 1.0) <= MATCH_TOLERANCE for o, pub in pubs)
-            matched[p][0] += good
-            matched[p][1] += len(pubs)
+            for count in (matched[p], *([targets[p]] if exp.key not in ORDERING_ONLY_TABLES else [])):
+                count[0] += good
+                count[1] += len(pubs)
             line.append(f"{good} of {len(pubs)}")
         order_rows.append(line)
         record["orderings"].append({"table": exp.key, "published_order": published, "holds": holds})
@@ -807,10 +809,14 @@ def _fill_summary(sec, exps: list[Experiment], res: dict, sources: dict[str, dic
         extra = {r.estimator: r for r in exp.all_rows()[len(exp.rows):]}
         best_rows.append([exp.title, window_name(exp.window), best]
                          + [fmt(rms[primary][extra[g]]) if g in extra else "–" for g in (RANGES_ONLY_GRAPH, *GRAPH_ESTIMATORS)])
-    record["matches"] = {p: {"within": m[0], "of": m[1]} for p, m in matched.items()}
+    record["matches"] = {p: {"within": m[0], "of": m[1], "targets_within": targets[p][0], "targets_of": targets[p][1]}
+                         for p, m in matched.items()}
     sec.text("How many published RMS figures ours match within "
              f"±{MATCH_TOLERANCE:.0%} (mean over seeds, each table's window): "
              + "; ".join(f"{p} profile {m[0]} of {m[1]}" for p, m in matched.items())
+             + ". Without the RFID-only Tables 2, whose magnitudes the paper profile does not aim at (their "
+               "order only; benchmarks/paper_profile.py measures the target, 80 % of these over ten seeds): "
+             + "; ".join(f"{p} profile {t[0]} of {t[1]}" for p, t in targets.items())
              + ". An ordering holds when our RMS ranks the paper's estimators of a table as the paper does. Where "
                "it does not, the cell names each pair reversed with its difference paired over the same seeds "
                f"(mean ± standard error) and whether that is within the seeds' spread (under {ORDERING_NOISE_SE:g} "
