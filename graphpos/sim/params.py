@@ -443,7 +443,13 @@ PROFILES: dict[str, dict[str, Any]] = {
             # there, IMM 1.44 m) leave no room for it. A shorter delay
             # brings them down and RFID-EKF with them, below song2016's
             # 4-5.6 m (seeds 0-9: 0.5 s 33/47, 0.7 s 34/47; 0 s with 8 dB of
-            # fading 33/47; 0.5 s with 7 dB 34/47).
+            # fading 33/47; 0.5 s with 7 dB 34/47). Nor does RFID-EKF's
+            # update as song2016 prints it (one step of eq. 13-15, where ours
+            # iterates three times) take the delay's place: it raises
+            # RFID-EKF erratically (Table 4 acceleration 7.5 m with the 1 s
+            # delay, 6.0 m without), and with the delay at 0.5 s gave 36/47
+            # with RFID-EKF behind multilateration (Table 2) and STEKF behind
+            # EKF (song2014 T5) beyond the seeds' spread; at 0 s 32/47.
             # Reads missed by the moving reader: 10 % of the tags in range
             # each scan (ideal 5 %). Whole-scan dropouts and per-tag
             # mounting offsets (scan_dropout_probability, tag_offset_db)
