@@ -133,7 +133,7 @@ def _cut(drive, start_s: float, end_s: float, name: str):
 SEGMENT_STARTS = (0.0, 0.15, 0.3, 0.45, 0.6, 0.75)
 
 
-def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int:
+def _segments(groups: dict[str, list], names: list[str], length_s: float, settings_of) -> int:
     """Each estimator on pieces of each drive that begin mid-drive (a new start: moving, other landmarks first).
 
     Prints, per piece, how long after its beginning the first row came
@@ -142,7 +142,8 @@ def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int
     calibrated itself (``noise_dof``; under
     :data:`~graphpos.graph.calibration.MIN_NOISE_FIT_DOF` the piece does not
     determine the noise); then per estimator the pieces never started and the mean delay
-    (counting a piece never started as its whole length) and RMS.
+    (counting a piece never started as its whole length) and RMS. ``settings_of(drive,
+    name)``: each estimator's settings (``--set``), as for :func:`_profile_transfer`.
     """
     print(f"{'piece':<34}{'estimator':<16}{'first_s':>8}{'rms_m':>8}{'anees':>9}{'noise_dof':>10}")
     summary: dict[str, list] = {n: [] for n in names}
@@ -154,7 +155,7 @@ def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int
                 if len(piece.truth) < 2:
                     continue
                 for name in names:
-                    r = score(piece, name)
+                    r = score(piece, name, settings_of(piece, name))
                     out = r["estimate"]
                     first = float(out.t_s[0] - a) if len(out.t_s) else math.nan
                     summary[name].append((first, r["rms_m"]))
@@ -173,7 +174,7 @@ def _segments(groups: dict[str, list], names: list[str], length_s: float) -> int
 HALVES_STARTS = (0.55, 0.7, 0.85)
 
 
-def _halves(groups: dict[str, list], names: list[str], length_s: float) -> int:
+def _halves(groups: dict[str, list], names: list[str], length_s: float, settings_of) -> int:
     """The fleet workflow on short recordings: a profile calibrated on each drive's first half, used on pieces of its second.
 
     graph-batch calibrates (as ``graphpos calibrate``) on the first half of
@@ -181,19 +182,22 @@ def _halves(groups: dict[str, list], names: list[str], length_s: float) -> int:
     55, 70 and 85 % of the drive, on its own (self-calibrating or learning
     online from the piece alone) and with that profile (as ``--profile``).
     Prints RMS and ANEES per piece, then per estimator the mean RMS and
-    median ANEES over the pieces where both started.
+    median ANEES over the pieces where both started. ``settings_of``: as for
+    :func:`_segments` (the calibrating graph-batch's too).
     """
     print(f"{'piece':<34}{'estimator':<16}{'own rms':>8}{'anees':>8}{'profile rms':>12}{'anees':>8}")
     summary: dict[str, list] = {n: [] for n in names}
     for drives in groups.values():
         for drive in drives:
-            profile = _profile_of(_cut(drive, drive.start_s, drive.start_s + 0.5 * drive.duration_s, drive.name + "-first-half"))
+            first_half = _cut(drive, drive.start_s, drive.start_s + 0.5 * drive.duration_s, drive.name + "-first-half")
+            profile = _profile_of(first_half, settings_of(first_half, "graph-batch"))
             for f in HALVES_STARTS:
                 a = drive.start_s + f * drive.duration_s
                 piece = _cut(drive, a, a + length_s, f"{drive.name}@{f:.2f}")
                 for name in names:
                     try:
-                        own, given = score(piece, name), score(piece, name, profile=profile)
+                        own = score(piece, name, settings_of(piece, name))
+                        given = score(piece, name, settings_of(piece, name), profile=profile)
                     except MissingChannelError as exc:  # a piece without a reading the estimator needs
                         print(f"{piece.name:<34}{name:<16}  cannot run: {exc}", flush=True)
                         continue
@@ -280,9 +284,9 @@ def main(argv=None) -> int:
         print("no recorded drives found under", DATA, file=sys.stderr)
         return 1
     if args.segments is not None:
-        return _segments(groups, names, args.segments)
+        return _segments(groups, names, args.segments, settings_of)
     if args.halves is not None:
-        return _halves(groups, names, args.halves)
+        return _halves(groups, names, args.halves, settings_of)
     print(f"{'drive':<28}{'estimator':<16}{'rms_m':>8}{'anees':>9}{'cpu_s':>8}{'noise_dof':>10}")
     for group, drives in groups.items():
         means: dict[str, list] = {n: [] for n in names}
