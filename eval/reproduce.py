@@ -847,12 +847,14 @@ def _speed_section(report: Report, res: dict, srcs: list[SimSource], tables: dic
     if not srcs:
         return
     by_name: dict[str, list[JobResult]] = defaultdict(list)
+    by_drive: dict[SimSource, JobResult] = {}  # the raw wheel speed is the drive's: one figure per seed
     for (src, name, _layout, held), r in res.items():
         if src in srcs and not held and r.ok and r.metrics["velocity_provided"]:
             by_name[name].append(r)
+            by_drive.setdefault(src, r)
     if not by_name:
         return
-    wheel = [r.metrics["windows"][WHOLE]["wheel_speed"] for rs in by_name.values() for r in rs[:1]]
+    wheel = [r.metrics["windows"][WHOLE]["wheel_speed"] for r in by_drive.values()]
     rows = [["raw wheel speed", mean_spread([w["mean_mps"] for w in wheel if w], 3),
              mean_spread([w["rms_mps"] for w in wheel if w], 3)]]
     for name, rs in by_name.items():

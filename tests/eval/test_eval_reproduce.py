@@ -125,6 +125,27 @@ def test_a_reversed_ordering_says_whether_the_seeds_settle_it():
     assert reproduce_module._ordering(exp, {a: 1.5, b: 1.0}, one)[1] == "no: B < A; A behind B by 0.50 m (one seed: no spread to judge)"
 
 
+def test_speed_table_takes_the_raw_wheel_speed_of_every_seed():
+    from eval.execution import Job, JobResult, SimSource
+    from eval.metrics import WHOLE
+    from eval.report import Report
+
+    def result(src, name, wheel_mean, speed_mean):
+        windows = {WHOLE: {"wheel_speed": {"mean_mps": wheel_mean, "rms_mps": abs(wheel_mean)},
+                           "speed": {"mean_mps": speed_mean, "rms_mps": abs(speed_mean)}}}
+        return JobResult(Job(src, name), metrics={"velocity_provided": True, "windows": windows})
+
+    seeds = [SimSource("paper-straight", "constant", seed) for seed in (0, 1)]
+    res = {(src, name, None, False): result(src, name, wheel, 0.01 * (i + 1))
+           for src, wheel in zip(seeds, (-0.10, -0.12)) for i, name in enumerate(("fusion-ekf", "fukf"))}
+    tables: dict = {}
+    reproduce_module._speed_section(Report("t"), res, seeds, tables)
+    rows = {r[0]: r for r in tables["song2016-fig16"]["rows"]}
+    # one raw wheel figure per drive (seed), not the first estimator's drive once per estimator
+    assert rows["raw wheel speed"][1] == "-0.110 ± 0.010"
+    assert rows["fukf"][1] == "0.020 ± 0.000"
+
+
 def test_route_frame_of_an_offset_track(make_drive):
     import numpy as np
 
