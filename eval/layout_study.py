@@ -37,6 +37,7 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
                  workers: int | None = None, scheduler: str | None = None, progress: bool = True,
                  duration_s: float | None = None) -> Outcome:
     """Run the study and write ``results.json``, ``report.md``/``.html`` and ``cost_accuracy.png``."""
+    from graphpos.registry import require_known
     from graphpos.sim import SCENARIOS
 
     started = time.perf_counter()
@@ -45,6 +46,7 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
     if seeds < 1:
         raise ConfigError(f"--seeds must be at least 1, got {seeds}")
     names = list(estimators or DEFAULT_ESTIMATORS)
+    require_known(names)  # refused before any work, as evaluate does, not once per job
     sources = [SimSource(scenario, None, seed, duration_s=duration_s) for seed in range(seeds)]
     drive = load_drive(sources[0])
     layouts = [name for name in LAYOUTS if name in drive.tags.layouts]

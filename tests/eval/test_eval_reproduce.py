@@ -177,6 +177,13 @@ def test_layout_study_curve(tmp_path):
     assert "| bound (smoother) [m] | bound (filtering) [m] |" in md
 
 
+def test_layout_study_refuses_an_unknown_estimator_before_any_work(tmp_path, capsys):
+    code = main(["layout-study", "paper-straight", "--seeds", "1", "-e", "no-such", "-o", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and "unknown estimator 'no-such'" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.slow
 def test_reproduce_quick_end_to_end(tmp_path):
     code = main(["reproduce", "--quick", "-o", str(tmp_path), "--no-progress"])
