@@ -80,14 +80,14 @@ class Simulated:
 
     @property
     def upper_m(self) -> float:
-        """One-sided 90 % upper confidence limit of the mean over seeds (Student t; the mean itself for one seed):
-        a sparse layout's error varies a lot from drive to drive, and its mean over a few drives can meet a
-        target its mean over many misses."""
+        """One-sided 90 % upper confidence limit of the mean over seeds (Student t; NaN for one seed, which
+        gives no limit): a sparse layout's error varies a lot from drive to drive, and its mean over a few
+        drives can meet a target its mean over many misses."""
         from scipy.stats import t as student_t
 
         n = len(self.per_seed_m)
         if n < 2 or not math.isfinite(self.value_m):
-            return self.value_m
+            return math.nan
         return self.value_m + float(student_t.ppf(0.9, n - 1)) * float(np.std(self.per_seed_m, ddof=1)) / math.sqrt(n)
 
 
@@ -183,7 +183,9 @@ def plan_layout(spec: TunnelSpec, folder: Path, target_m: float | None = None, b
     from graphpos.registry import require_known
 
     started = time.perf_counter()
-    if (target_m is None) == (budget is None):
+    if target_m is None and budget is None:
+        raise ConfigError("plan-layout: give a target (--target-m) or a tag budget (--budget)")
+    if target_m is not None and budget is not None:
         raise ConfigError("plan-layout: give either a target (--target-m) or a tag budget (--budget), not both")
     if target_m is not None and not (math.isfinite(target_m) and target_m > 0):
         raise ConfigError(f"plan-layout: the target must be a positive distance in metres, got {target_m!r}")
@@ -191,6 +193,9 @@ def plan_layout(spec: TunnelSpec, folder: Path, target_m: float | None = None, b
         raise ConfigError(f"plan-layout: the tag budget must be at least 1, got {budget}")
     if seeds < 1 or fresh_seeds < 1:
         raise ConfigError(f"plan-layout: --seeds and --fresh-seeds must be at least 1, got {seeds} and {fresh_seeds}")
+    if target_m is not None and fresh_seeds < 2:
+        raise ConfigError("plan-layout: a target is confirmed by the 90 % upper limit of the mean over the fresh drives, "
+                          f"which one drive does not give: --fresh-seeds must be at least 2, got {fresh_seeds}")
     classes = require_known(["graph-batch", estimator])
     carried = set(sensor_set(spec.sensors))
     for cls, what in ((classes["graph-batch"], "the bound (graph-batch's graph)"), (classes[estimator], estimator)):

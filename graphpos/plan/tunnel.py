@@ -91,18 +91,22 @@ class TunnelSpec:
         patterns = SCENARIOS[BASE_SCENARIO].patterns
         if self.pattern not in patterns:
             raise ConfigError(f"plan-layout: unknown motion pattern '{self.pattern}' (known: {', '.join(patterns)})")
-        for name in ("length_m", "width_m", "speed_mps"):
+        for name, what in (("length_m", "the tunnel length (--length-m)"), ("width_m", "the tunnel width (--width-m)"),
+                           ("speed_mps", "the driving speed (--speed-kmh)")):
             value = getattr(self, name)
             if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"plan-layout: {name.replace('_', ' ')} must be positive, got {value!r}")
+                shown = value * 3.6 if name == "speed_mps" else value  # in the unit the option takes
+                raise ConfigError(f"plan-layout: {what} must be positive, got {shown!r}")
         if self.width_m < 2.0:
             raise ConfigError(f"plan-layout: a tunnel {self.width_m:g} m wide has no lane; give at least 2 m")
         if self.curve_radius_m is not None:
             if not (self.curve_radius_m >= 5.0):
                 raise ConfigError(f"plan-layout: curve radius must be at least 5 m, got {self.curve_radius_m!r}")
-            if not (self.curve_length_m > 0 and self.curve_start_m >= 0
-                    and self.curve_start_m + self.curve_length_m <= self.length_m + 1e-9):
-                raise ConfigError("plan-layout: the curve (start + length) must lie inside the tunnel, with a positive length")
+            if not self.curve_length_m > 0:
+                raise ConfigError(f"plan-layout: a curve needs its arc length (--curve-length-m), positive; got {self.curve_length_m!r}")
+            if not (self.curve_start_m >= 0 and self.curve_start_m + self.curve_length_m <= self.length_m + 1e-9):
+                raise ConfigError(f"plan-layout: the curve ({self.curve_start_m:g} m + {self.curve_length_m:g} m, --curve-start-m "
+                                  f"+ --curve-length-m) must lie inside the {self.length_m:g} m tunnel")
 
     def overrides(self) -> dict[str, Any]:
         """Simulator parameters (over :data:`BASE_SCENARIO`) of a drive through the tunnel."""

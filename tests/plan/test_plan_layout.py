@@ -136,13 +136,19 @@ def test_plan_with_a_budget_writes_a_layout_that_simulate_accepts(tmp_path):
     results = json.loads((folder / "results.json").read_text())
     assert results["chosen"]["bound_m"] > 0 and results["chosen"]["simulated_m"] > results["chosen"]["bound_m"] * 0.5
     assert len(results["rivals"]) == 2
+    assert results["chosen"]["fresh_upper_90_m"] is None  # one fresh drive gives no confidence limit
 
 
 @pytest.mark.parametrize("argv, needle", [
     (["--length-m", "120", "--target-m", "0.5", "--budget", "4"], "not allowed with"),
-    (["--length-m", "120"], "give either a target"),
+    (["--length-m", "120"], "give a target (--target-m) or a tag budget (--budget)"),
     (["--length-m", "120", "--target-m", "-1"], "target must be a positive"),
-    (["--length-m", "0", "--target-m", "1"], "length m must be positive"),
+    (["--length-m", "0", "--target-m", "1"], "the tunnel length (--length-m) must be positive, got 0.0"),
+    (["--length-m", "120", "--target-m", "1", "--speed-kmh", "0"], "the driving speed (--speed-kmh) must be positive, got 0.0"),
+    (["--length-m", "120", "--target-m", "1", "--curve-radius-m", "30"], "a curve needs its arc length (--curve-length-m)"),
+    (["--length-m", "120", "--target-m", "1", "--curve-radius-m", "30", "--curve-length-m", "40", "--curve-start-m", "100"],
+     "the curve (100 m + 40 m, --curve-start-m + --curve-length-m) must lie inside the 120 m tunnel"),
+    (["--length-m", "120", "--target-m", "1", "--fresh-seeds", "1"], "--fresh-seeds must be at least 2, got 1"),
     (["--length-m", "120", "--budget", "5", "-e", "no-such"], "no-such"),
     (["--length-m", "120", "--budget", "5", "--sensors", "imu,sonar,rfid"], "sonar"),
     (["--length-m", "120", "--budget", "5", "--reader-range-m", "20"], "reader range"),
