@@ -11,7 +11,12 @@ can measure the error during the fault and the recovery after it.
 
 Episodic faults take ``start_s`` (default: 30 % into the drive) and
 ``duration_s``; the sample-level faults (dropped, duplicated, late) act on
-the whole drive unless given ``start_s``/``duration_s`` too.
+the whole drive unless given ``start_s``/``duration_s`` too. A fault that
+would act on nothing is refused (ConfigError): an episode starting outside
+the drive or of no length, no RFID tags for ``dead_tags``, or no reading of
+the fault's channels in its span (a GNSS fault where the drive has no fix,
+which the default 30 % puts in the tunnel of every built-in scenario): its
+``fault:`` window would label a clean span, and reports would score it.
 
 Kinds
 -----
@@ -116,6 +121,11 @@ def _check(kind: str, spec: dict[str, Any], duration_s: float) -> dict[str, Any]
             p["start_s"], p["duration_s"] = 0.0, duration_s
         elif p["duration_s"] is None:
             p["duration_s"] = duration_s - p["start_s"]
+        # an episode outside the drive, or of no length, would label a window where nothing happened
+        if not 0.0 <= p["start_s"] < duration_s:
+            raise ConfigError(f"fault '{kind}': start_s must be within the drive (0 to {duration_s:g} s), got {p['start_s']:g}")
+        if p["duration_s"] <= 0:
+            raise ConfigError(f"fault '{kind}': duration_s must be positive, got {p['duration_s']:g}")
     return p
 
 
@@ -190,6 +200,7 @@ def apply_faults(
     for kind, episode, p in episodes:
         rng = np.random.default_rng([seed, 8, _KIND_INDEX[kind], episode])
         span = _span(p, duration_s)
+        _require_target(kind, p, span, cols, tags)
         drawn = _APPLY[kind](cols, p, span, rng, tags=tags, units_per_db=units_per_db)
         windows.append(Window(f"fault:{kind}", max(span[0], 0.0), max(min(span[1], duration_s), max(span[0], 0.0))))
         record.setdefault(kind, []).append({**p, **(drawn or {})})
@@ -198,6 +209,39 @@ def apply_faults(
         if np.any(order != np.arange(order.size)):
             cols[name] = _rows(c, order)
     return cols, windows, record
+
+
+def _targets(kind: str, p: dict[str, Any]) -> tuple[str, ...]:
+    """The sensor channels a fault acts on."""
+    if kind == "clock_offset":
+        return (p["channel"],)
+    if kind in ("dropped_samples", "duplicated_samples"):
+        return tuple(p["channels"])
+    return _CHANNELS[kind]
+
+
+def _require_target(kind: str, p: dict[str, Any], span: tuple[float, float], cols, tags: TagMap) -> None:
+    """A ConfigError when the fault would act on nothing (no tags, or no reading of its channels in its span):
+    its ``fault:`` window would otherwise label a span where the drive is clean, and be scored as a fault."""
+    if kind == "dead_tags" and len(tags) == 0:
+        raise ConfigError("fault 'dead_tags' has nothing to act on: the drive has no RFID tags")
+    channels = _targets(kind, p)
+    if any(name in cols and _in(cols[name]["t_s"], span).any() for name in channels):
+        return
+    what = " or ".join(channels)
+    where = [f"{name} at " + ", ".join(f"{a:.1f}-{b:.1f}" for a, b in _stretches(cols[name]["t_s"])) + " s"
+             for name in channels if name in cols and cols[name]["t_s"].size]
+    if not where:
+        raise ConfigError(f"fault '{kind}' has nothing to act on: the drive has no {what} readings")
+    raise ConfigError(f"fault '{kind}' at {span[0]:.1f}-{span[1]:.1f} s has nothing to act on: the drive has no {what} "
+                      f"reading then (it has {'; '.join(where)}: give start_s and duration_s there)")
+
+
+def _stretches(t: np.ndarray, gap_s: float = 2.0, most: int = 4) -> list[tuple[float, float]]:
+    """The spans of readings at most ``gap_s`` apart (the first ``most``)."""
+    breaks = np.flatnonzero(np.diff(t) > gap_s)
+    starts, ends = np.concatenate([[0], breaks + 1]), np.concatenate([breaks, [t.size - 1]])
+    return [(float(t[a]), float(t[b])) for a, b in zip(starts[:most], ends[:most])]
 
 
 def _dead_tags(cols, p, span, rng, tags, **_):
@@ -301,6 +345,18 @@ def _late(cols, p, span, rng, **_):
             arrival[late] = np.maximum(arrival[late], c["t_s"][late] + rng.uniform(p["min_s"], p["max_s"], int(late.sum())))
             c["arrival_s"] = arrival
 
+
+#: The sensor channels each fault kind acts on (clock_offset's and the sample faults' are their parameters').
+_CHANNELS: dict[str, tuple[str, ...]] = {
+    "dead_tags": ("rfid",),
+    "rfid_blackout": ("rfid", "rsu"),
+    "nlos_burst": ("rfid", "rsu"),
+    "wheel_slip": ("wheel",),
+    "compass_disturbance": ("compass",),
+    "gnss_jump": ("gnss",),
+    "gnss_multipath": ("gnss",),
+    "late_readings": ("rfid", "rsu"),
+}
 
 _APPLY = {
     "dead_tags": _dead_tags,

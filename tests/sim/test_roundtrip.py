@@ -13,7 +13,7 @@ io = pytest.importorskip("graphpos.io")
 @pytest.mark.parametrize("name", list(SCENARIOS))
 def test_round_trip(name, tmp_path):
     drive = simulate(name, seed=7, duration_s=40.0, rfid_latency_s=(0.5, 2.0),
-                     faults={"dropped_samples": {"fraction": 0.01}, "rfid_blackout": {"start_s": 5, "duration_s": 5}})
+                     faults={"dropped_samples": {"fraction": 0.01}, "wheel_slip": {"start_s": 5, "duration_s": 5}})
     path = tmp_path / f"{name}.mcap"
     io.write_drive(path, drive)
     back = io.read_drive(path)
