@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 import time
 from collections import defaultdict
 from pathlib import Path
@@ -595,6 +596,8 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
             mrclam_drives[robot] = first_seconds(drive, QUICK_MRCLAM_S) if quick else drive
             for name in MRCLAM_ESTIMATORS:
                 runs.add(mrclam_drives[robot], name, None, keep=robot == robots[0], name=f"mrclam/{robot}")
+        if mrclam is not None and not mrclam_drives:  # the folder the user named is not a dataset: refused, as a missing one
+            raise ConfigError(f"--mrclam {mrclam}: no robot could be imported ({mrclam_skip.strip()})")
 
     with output_folder(folder, "results.json") as out:
         # song2016 Table 1 fits its range models in a process of its own while the workers run the drives
@@ -604,7 +607,9 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
                           desc="reproduce")
         res = dict(zip(keys, results))
         bound_keys = list(dict.fromkeys(k for exp in exps for k in _bound_keys(exp, sources[exp.key]))) if bound else []
-        bounds = dict(zip(bound_keys, drive_bounds(bound_keys, workers=workers, scheduler=scheduler)))
+        bounds = dict(zip(bound_keys, drive_bounds(bound_keys, workers=workers, scheduler=scheduler, progress=progress)))
+        if progress:  # the plots take a while after the last bar
+            print("reproduce: drawing the plots and writing the report", file=sys.stderr, flush=True)
 
         title = "graphpos reproduce — the papers' tables on simulated drives" + (" (quick)" if quick else "")
         report = Report(title)
@@ -700,8 +705,9 @@ def reproduce(folder: Path, quick: bool = False, seeds: int | None = None, plaza
             if mrclam_drives:
                 _mrclam_section(report, res, mrclam_drives, out, tables, mrclam_skip)
             else:
+                missing = "no robot could be imported" if mrclam_path.is_dir() else "not found"
                 report.section("MRCLAM", level=3).text(
-                    f"Skipped: {mrclam_path} not found (give --mrclam DIR; {MRCLAM_SOURCE}).{mrclam_skip}")
+                    f"Skipped: {mrclam_path} {missing} (give --mrclam DIR; {MRCLAM_SOURCE}).{mrclam_skip}")
 
         add_failure_section(report, results)
         took = time.perf_counter() - started
@@ -940,14 +946,15 @@ def _mrclam_section(report: Report, res: dict, drives: dict[int, Drive], folder:
                     skipped: str = "") -> None:
     """UTIAS MRCLAM: each robot's odometry and landmark ranges, RMS per robot."""
     robots = list(drives)
-    header = ["estimator", "sensors", *[f"robot {n} RMS [m]" for n in robots], "mean RMS [m]"]
+    with_mean = len(robots) > 1  # the mean of one robot would repeat its cell
+    header = ["estimator", "sensors", *[f"robot {n} RMS [m]" for n in robots], *(["mean RMS [m]"] * with_mean)]
     rows, record = [], []
     for name in MRCLAM_ESTIMATORS:
         rs = [res[(f"mrclam/{n}", name, None, False)] for n in robots]
         cells = [_real_cell(r) for r in rs]
-        rows.append([name, sensors_of(name, list(drives[robots[0]].channels)), *cells,
-                     fmt(mean_stat(rs, WHOLE, "rms_m"))
-                     if all(np.isfinite(window_stat(r, WHOLE, "rms_m")) for r in rs) else "–"])
+        mean = (fmt(mean_stat(rs, WHOLE, "rms_m")) if all(np.isfinite(window_stat(r, WHOLE, "rms_m")) for r in rs)
+                else "–")
+        rows.append([name, sensors_of(name, list(drives[robots[0]].channels)), *cells, *([mean] * with_mean)])
         record.append({"estimator": name, "robots": robots, "rms_m": [window_stat(r, WHOLE, "rms_m") for r in rs],
                        "errors": [r.error for r in rs]})
     first = drives[robots[0]]
@@ -956,7 +963,8 @@ def _mrclam_section(report: Report, res: dict, drives: dict[int, Drive], folder:
     sec.text("Five robots in a room: wheel speed and turn rate (commanded, 67-100 Hz), camera ranges to "
              "surveyed landmarks (2-5 Hz, as RFID ranges), Vicon truth (graphpos.io.mrclam). No accelerometers "
              "and no compass: estimators needing them report n/a. Default range model (the camera's ranges are "
-             "unbiased within a few centimetres). 'mean RMS' only when every robot ran."
+             "unbiased within a few centimetres)."
+             + (" 'mean RMS' over the robots in the table, only when each of them ran." if with_mean else "")
              + (f" --quick: robot(s) {', '.join(map(str, robots))} only, the first {cut:.0f} s of each." if cut else "")
              + skipped)
     sec.table(header, rows)

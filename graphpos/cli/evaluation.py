@@ -64,8 +64,9 @@ def register(sub) -> None:
                         "(white-noise sensors), paper (sensor errors like the papers' road tests) or both "
                         "(default); not a calibration profile")
     p.add_argument("--only", action="append", default=None, metavar="KEY",
-                   help="run only this experiment (repeat; a key of results.json's tables, e.g. song2016-table3, "
-                        "or a prefix, e.g. song2016-table4)")
+                   help="run only this experiment (repeat; an experiment's key, e.g. song2016-table3, or a prefix, "
+                        "e.g. song2016-table4; a wrong key lists them; song2016 Table 1, the range model's fit, is not "
+                        "one: it always runs)")
     p.add_argument("--plaza", type=Path, default=None, metavar="FILE.mat",
                    help="the Plaza dataset (default: <repo>/../shared/data/plaza/Plaza1.mat when present)")
     p.add_argument("--mrclam", type=Path, default=None, metavar="DIR",

@@ -80,12 +80,24 @@ def test_reproduce_both_profiles_and_real_data_failures(tmp_path, monkeypatch):
     assert f"deviates by a constant {compass['bias_min_deg']:g}-{compass['bias_max_deg']:g} degrees" in md
     assert "### MRCLAM (UTIAS Dataset 6)" in md and "| no-such | – | FAILED: ConfigError" in md
     assert "robot(s) 1, 2 only, the first 20 s of each" in md and "What --quick cuts" in md
+    assert "| robot 1 RMS [m] | robot 2 RMS [m] | mean RMS [m] |" in md and "'mean RMS' over the robots in the table" in md
     res = json.loads((tmp_path / "out" / "results.json").read_text())
     assert res["profiles"]["ideal"]["seeds"] == 1 and res["profiles"]["paper"]["seeds"] == 2
     assert res["tables"]["mrclam"]["rows"][0]["robots"] == [1, 2]
     matches = res["tables"]["summary"]["matches"]["paper"]
     assert matches["of"] == 2 and (matches["targets_within"], matches["targets_of"]) == (0, 0)
     assert {r.job.estimator for r in outcome.failures} >= {"no-such"}
+
+
+def test_reproduce_refuses_a_named_mrclam_folder_that_is_not_a_dataset(tmp_path, monkeypatch):
+    from graphpos.errors import ConfigError
+
+    monkeypatch.setattr(reproduce_module, "default_plaza_path", lambda: tmp_path / "absent.mat")
+    (tmp_path / "notes").mkdir()
+    with pytest.raises(ConfigError, match=r"--mrclam .*notes: no robot could be imported \(Robot 3 not imported: .*Barcodes"):
+        reproduce_module.reproduce(tmp_path / "out", quick=True, only=["song2016-table2"], mrclam=tmp_path / "notes",
+                                   workers=1, progress=False)
+    assert not (tmp_path / "out").exists()
 
 
 def test_display_names_and_verdicts():
