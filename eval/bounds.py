@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from typing import Any, Iterable
 
 import numpy as np
+from tqdm import tqdm
 
 from eval.execution import executor, load_drive
 from eval.metrics import WHOLE
@@ -178,14 +179,15 @@ def source_bound(source: Any, layout: str | None = None) -> DriveBound:
 
 
 def drive_bounds(keys: list[tuple[Any, str | None]], workers: int | None = None,
-                 scheduler: str | None = None) -> list[DriveBound]:
-    """:func:`source_bound` of each (source, layout), computed in the executor's workers; in the order of ``keys``."""
+                 scheduler: str | None = None, progress: bool = False) -> list[DriveBound]:
+    """:func:`source_bound` of each (source, layout), computed in the executor's workers; in the order of ``keys``
+    (``progress``: a bar on stderr, as the runs have)."""
     if not keys:
         return []
     with executor(workers, scheduler, tasks=len(keys)) as pool:
         futures = [pool.submit(source_bound, *key) for key in keys]
         out = []
-        for (source, layout), fut in zip(keys, futures):
+        for (source, layout), fut in zip(keys, tqdm(futures, desc="bounds", unit="drive", disable=not progress, leave=False)):
             try:
                 out.append(fut.result())
             except Exception as exc:  # the worker itself died

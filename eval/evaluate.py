@@ -45,7 +45,7 @@ from eval.metrics import WHOLE
 from eval.names import same_windows, window_name
 from eval.report import Report, Section, fmt, write_json
 from graphpos.drive import Drive
-from graphpos.errors import MissingChannelError, naming_file
+from graphpos.errors import ConfigError, MissingChannelError, naming_file
 from graphpos.io import read_drive
 from graphpos.io.checks import drive_checks
 from graphpos.io.exports import write_exports
@@ -289,7 +289,8 @@ def evaluate(drives: list[tuple[Any, Drive]], estimators: list[str], folder: Pat
             for name in estimators
         ]
         results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="evaluate")
-        bounds = (drive_bounds([(source, layout) for source, _ in drives], workers=workers, scheduler=scheduler)
+        bounds = (drive_bounds([(source, layout) for source, _ in drives], workers=workers, scheduler=scheduler,
+                               progress=progress)
                   if bound else [None] * len(drives))
         report = Report("graphpos evaluation")
         report.section("Set-up").text(
@@ -349,4 +350,8 @@ def add_failure_section(report: Report, results: list[JobResult]) -> None:
 def file_sources(paths: list[str]) -> list[tuple[FileSource, Drive]]:
     """Read each drive file here (to check it and plot it) and name it as the workers' source."""
     drives = [read_drive(p) for p in paths]  # first: a bad path is the reader's one-line error
-    return [(FileSource(str(Path(p).resolve())), drive) for p, drive in zip(paths, drives)]
+    resolved = [Path(p).resolve() for p in paths]
+    twice = next((p for p, r in zip(paths, resolved) if resolved.count(r) > 1), None)
+    if twice is not None:  # it would be scored twice, as two drives
+        raise ConfigError(f"drive {twice} is given more than once")
+    return [(FileSource(str(r)), drive) for r, drive in zip(resolved, drives)]

@@ -61,7 +61,8 @@ def layout_study(scenario: str, folder: Path, seeds: int = 3, estimators: list[s
         results = execute(jobs, workers=workers, scheduler=scheduler, progress=progress, desc="layout-study")
         by = {(j.layout, j.estimator, j.source): r for j, r in zip(jobs, results)}
         bound_keys = [(src, lay) for lay in layouts for src in sources]
-        bounds = dict(zip(bound_keys, drive_bounds(bound_keys, workers=workers, scheduler=scheduler)))
+        bounds = dict(zip(bound_keys, drive_bounds(bound_keys, workers=workers, scheduler=scheduler,
+                                                    progress=progress)))
 
         points: dict[str, list[tuple[float, float, float]]] = {}
         bound_points: dict[str, list[tuple[float, float]]] = {kind: [] for kind in KINDS}

@@ -86,6 +86,16 @@ def test_drive_without_truth_is_refused(tmp_path, drive, test_estimators):
         evaluate([(bare, bare)], ["noisy-truth"], tmp_path, progress=False, mcap=False)
 
 
+def test_a_drive_given_twice_is_refused(tmp_path, drive):
+    from eval.evaluate import file_sources
+    from graphpos.errors import ConfigError
+    from graphpos.io import write_drive
+
+    write_drive(tmp_path / "a.mcap", drive)
+    with pytest.raises(ConfigError, match="drive .*a.mcap is given more than once"):
+        file_sources([str(tmp_path / "a.mcap"), str(tmp_path / "." / "a.mcap")])  # the same file by two spellings
+
+
 def test_dask_gives_the_same_numbers_as_the_process_pool(tmp_path, drive, test_estimators):
     distributed = pytest.importorskip("distributed")
     evaluate([(drive, drive)], ["noisy-truth"], tmp_path / "pool", workers=2, progress=False, mcap=False)
